@@ -1,0 +1,76 @@
+//! The `cell` command line: one subcommand per task an operator or developer runs.
+//!
+//! Every subcommand that computes something prints one JSON document on stdout with
+//! `--json` and human-readable text otherwise; logs go to stderr.
+
+pub mod bench;
+mod output;
+mod robot;
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+pub use output::emit;
+
+/// Controller for the graspcell grasping cell (KUKA LBR4+, Barrett BH8-282, RGB-D camera).
+#[derive(Debug, Parser)]
+#[command(name = "cell", version, about, long_about = None)]
+pub struct Cli {
+    /// Cell configuration file.
+    #[arg(long, global = true, default_value = crate::config::DEFAULT_CONFIG_PATH)]
+    pub config: PathBuf,
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Forward kinematics: flange and palm poses for seven joint angles.
+    Fk(robot::FkArgs),
+    /// Inverse kinematics: joint angles that put the palm at a pose, or why none do.
+    Ik(robot::IkArgs),
+    /// Print the effective cell configuration (defaults and file) as TOML.
+    PrintConfig,
+    /// Benchmarks that print JSON: medians and ratios measured in one run.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+/// Entry point of the `cell` binary: parses arguments, runs, prints the error chain.
+pub fn main() -> ExitCode {
+    init_logging();
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(code) => code,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Runs one parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::Fk(args) => robot::fk(&cli.config, args),
+        Command::Ik(args) => robot::ik(&cli.config, args),
+        Command::PrintConfig => {
+            let config = crate::config::CellConfig::load(&cli.config)?;
+            print!("{}", toml::to_string_pretty(&config)?);
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Bench(which) => bench::run(&cli.config, which),
+    }
+}
+
+fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}

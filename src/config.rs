@@ -1,0 +1,329 @@
+//! The cell's configuration (`robot/cell.toml`): typed, validated, units in names.
+//!
+//! Every section rejects unknown fields so a typo is an error, not a silent
+//! default. Paths are relative to the directory of the configuration file.
+
+use crate::geometry::{Pose, PoseJson};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Default location of the cell configuration, relative to the repository root.
+pub const DEFAULT_CONFIG_PATH: &str = "robot/cell.toml";
+
+/// Errors of loading or validating the configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The file is not valid TOML for this schema.
+    #[error("config {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message, with line and column.
+        message: String,
+    },
+    /// A value is out of its valid range.
+    #[error("config {path}: {field} = {value}: {problem}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// The dotted field name.
+        field: String,
+        /// The offending value, as text.
+        value: String,
+        /// What is wrong with it.
+        problem: String,
+    },
+}
+
+/// The whole cell.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellConfig {
+    /// The arm and hand description.
+    pub robot: RobotConfig,
+    /// The table the objects stand on.
+    pub table: TableConfig,
+    /// The fixed RGB-D camera.
+    pub camera: CameraConfig,
+    /// The box the palm must stay inside (robot base frame).
+    pub workspace: WorkspaceConfig,
+    /// Speed limits on top of the URDF's.
+    pub limits: LimitsConfig,
+    /// The KUKA FRI link.
+    pub fri: FriConfig,
+    /// The hand's CAN bus.
+    pub can: CanConfig,
+}
+
+/// The robot description.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotConfig {
+    /// URDF of the arm with the hand, relative to the config file.
+    pub urdf: PathBuf,
+    /// Names of the seven arm joints, base to flange.
+    pub arm_joints: Vec<String>,
+    /// Link of the arm's flange.
+    pub flange_link: String,
+    /// Link of the hand's palm frame (z out of the palm).
+    pub palm_link: String,
+    /// Distance (m) the pre-grasp pose backs off from the grasp along the palm's -z.
+    pub pregrasp_offset_m: f64,
+}
+
+/// The table: a horizontal plane with a rectangular extent.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TableConfig {
+    /// Height of the table top above the robot base (m).
+    pub height_m: f64,
+    /// Centre of the table top in the base frame, x y (m).
+    pub center_xy_m: [f64; 2],
+    /// Size of the table top along x and y (m).
+    pub extent_xy_m: [f64; 2],
+    /// Thickness of the table slab used for collision (m).
+    pub thickness_m: f64,
+    /// The palm must stay at least this far above the table (m; the paper used 0.05).
+    pub palm_clearance_m: f64,
+}
+
+/// The fixed camera: intrinsics and the nominal mount.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    /// Where snapshots come from: `sim` or `replay`.
+    pub backend: String,
+    /// Nominal camera pose: robot base from camera optical frame (z forward, x right, y down).
+    /// A calibration result in `calib/hand_eye.toml` overrides it.
+    pub base_from_camera: PoseJson,
+    /// Image width (px).
+    pub width_px: u32,
+    /// Image height (px).
+    pub height_px: u32,
+    /// Focal length along x (px).
+    pub fx_px: f64,
+    /// Focal length along y (px).
+    pub fy_px: f64,
+    /// Principal point x (px).
+    pub cx_px: f64,
+    /// Principal point y (px).
+    pub cy_px: f64,
+    /// Nearest valid depth (m).
+    pub min_range_m: f64,
+    /// Farthest valid depth (m).
+    pub max_range_m: f64,
+}
+
+/// An axis-aligned box in the base frame.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorkspaceConfig {
+    /// Lower corner x y z (m).
+    pub min_m: [f64; 3],
+    /// Upper corner x y z (m).
+    pub max_m: [f64; 3],
+}
+
+/// Speed limits applied on top of the URDF's joint limits.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LimitsConfig {
+    /// Fraction (0, 1] of each joint's URDF velocity limit that trajectories may use.
+    pub joint_velocity_scale: f64,
+    /// Joint acceleration limit used for trajectories (rad/s^2).
+    pub joint_acceleration_rad_s2: f64,
+    /// Cartesian speed limit of the palm during approach and lift (m/s).
+    pub palm_speed_m_s: f64,
+}
+
+/// The KUKA FRI link.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FriConfig {
+    /// `sim` (FRI robot simulator) or `hardware`.
+    pub backend: String,
+    /// Local UDP address the driver binds (FRI default port 49938).
+    pub bind_addr: String,
+    /// Measurement period the KRL program requests (s).
+    pub cycle_s: f64,
+    /// A missing measurement for this long stops the executor (s).
+    pub timeout_s: f64,
+}
+
+/// The hand's CAN bus.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CanConfig {
+    /// Interface: `can0`/`vcan0` (SocketCAN) or `virtual:NAME` (userspace bus).
+    pub interface: String,
+    /// Timeout for one request/reply exchange (s).
+    pub reply_timeout_s: f64,
+}
+
+impl CellConfig {
+    /// Loads and validates a configuration file; relative paths become relative to it.
+    pub fn load(path: &Path) -> Result<CellConfig, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut config: CellConfig = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string().trim().replace('\n', " "),
+        })?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        if config.robot.urdf.is_relative() {
+            config.robot.urdf = dir.join(&config.robot.urdf);
+        }
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    /// The nominal `base_from_camera` pose.
+    pub fn base_from_camera(&self) -> Pose {
+        // Validated at load time.
+        self.camera
+            .base_from_camera
+            .to_pose("camera.base_from_camera")
+            .unwrap_or_else(|_| Pose::identity())
+    }
+
+    fn validate(&self, path: &Path) -> Result<(), ConfigError> {
+        let invalid = |field: &str, value: String, problem: &str| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            field: field.to_string(),
+            value,
+            problem: problem.to_string(),
+        };
+        let positive = [
+            ("table.extent_xy_m[0]", self.table.extent_xy_m[0]),
+            ("table.extent_xy_m[1]", self.table.extent_xy_m[1]),
+            ("table.thickness_m", self.table.thickness_m),
+            ("camera.fx_px", self.camera.fx_px),
+            ("camera.fy_px", self.camera.fy_px),
+            ("camera.min_range_m", self.camera.min_range_m),
+            (
+                "limits.joint_velocity_scale",
+                self.limits.joint_velocity_scale,
+            ),
+            (
+                "limits.joint_acceleration_rad_s2",
+                self.limits.joint_acceleration_rad_s2,
+            ),
+            ("limits.palm_speed_m_s", self.limits.palm_speed_m_s),
+            ("fri.cycle_s", self.fri.cycle_s),
+            ("fri.timeout_s", self.fri.timeout_s),
+            ("can.reply_timeout_s", self.can.reply_timeout_s),
+        ];
+        for (field, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(invalid(
+                    field,
+                    value.to_string(),
+                    "must be a finite number > 0",
+                ));
+            }
+        }
+        if self.limits.joint_velocity_scale > 1.0 {
+            return Err(invalid(
+                "limits.joint_velocity_scale",
+                self.limits.joint_velocity_scale.to_string(),
+                "must be at most 1 (a fraction of the URDF limit)",
+            ));
+        }
+        if self.camera.max_range_m <= self.camera.min_range_m {
+            return Err(invalid(
+                "camera.max_range_m",
+                self.camera.max_range_m.to_string(),
+                "must exceed camera.min_range_m",
+            ));
+        }
+        if self.camera.width_px == 0 || self.camera.height_px == 0 {
+            return Err(invalid(
+                "camera.width_px/height_px",
+                format!("{}x{}", self.camera.width_px, self.camera.height_px),
+                "must be non-zero",
+            ));
+        }
+        if self.robot.arm_joints.len() != 7 {
+            return Err(invalid(
+                "robot.arm_joints",
+                format!("{} names", self.robot.arm_joints.len()),
+                "the LBR4+ has exactly 7 joints",
+            ));
+        }
+        for i in 0..3 {
+            if !(self.workspace.min_m[i] < self.workspace.max_m[i]) {
+                return Err(invalid(
+                    "workspace.min_m/max_m",
+                    format!("{:?} / {:?}", self.workspace.min_m, self.workspace.max_m),
+                    "each min must be below its max",
+                ));
+            }
+        }
+        if !matches!(self.camera.backend.as_str(), "sim" | "replay") {
+            return Err(invalid(
+                "camera.backend",
+                self.camera.backend.clone(),
+                "use sim or replay",
+            ));
+        }
+        if !matches!(self.fri.backend.as_str(), "sim" | "hardware") {
+            return Err(invalid(
+                "fri.backend",
+                self.fri.backend.clone(),
+                "use sim or hardware",
+            ));
+        }
+        self.camera
+            .base_from_camera
+            .to_pose("camera.base_from_camera")
+            .map_err(|e| invalid("camera.base_from_camera", String::new(), &e.to_string()))?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shipped() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_CONFIG_PATH)
+    }
+
+    #[test]
+    fn shipped_config_loads_and_camera_sees_table() {
+        let config = CellConfig::load(&shipped()).unwrap();
+        assert!(config.robot.urdf.exists(), "{:?}", config.robot.urdf);
+        // The camera's optical axis points down at the table.
+        let z = config.base_from_camera().rotation * nalgebra::Vector3::z();
+        assert!(z.z < -0.5, "camera looks along {z:?}");
+    }
+
+    #[test]
+    fn unknown_field_and_bad_value_are_named() {
+        let text = std::fs::read_to_string(shipped()).unwrap();
+        let dir = std::env::temp_dir().join(format!("graspcell-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let typo = dir.join("typo.toml");
+        std::fs::write(&typo, text.replace("height_m =", "heigth_m =")).unwrap();
+        let err = CellConfig::load(&typo).unwrap_err().to_string();
+        assert!(
+            err.contains("heigth_m") && err.contains("typo.toml"),
+            "{err}"
+        );
+        let bad = dir.join("bad.toml");
+        std::fs::write(&bad, text.replace("cycle_s = 0.001", "cycle_s = -1.0")).unwrap();
+        let err = CellConfig::load(&bad).unwrap_err().to_string();
+        assert!(err.contains("fri.cycle_s"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

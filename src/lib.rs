@@ -1,0 +1,14 @@
+//! graspcell: a controller for a table-top grasping cell.
+//!
+//! A KUKA LBR4+ arm with a Barrett BH8-282 hand and a fixed RGB-D camera grasp a
+//! novel object of a known category for a task, by the method of Nikandrova & Kyrki
+//! (2015): one depth snapshot, registration against every model of the category, and
+//! the hand pose that maximises expected stability and task compatibility over all of
+//! them, subject to reachability and the table. See `ARCHITECTURE` in the shared docs
+//! for the processes and data flow; each module below owns one concept.
+
+pub mod cli;
+pub mod config;
+pub mod geometry;
+pub mod mesh;
+pub mod robot;

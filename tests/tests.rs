@@ -1,0 +1,1 @@
+//! Integration and hardware-in-loop tests, built as one binary (one link step).
