@@ -8,6 +8,7 @@
 //! for the processes and data flow; each module below owns one concept.
 
 pub mod cli;
+pub mod cloud;
 pub mod config;
 pub mod geometry;
 pub mod mesh;

@@ -1,6 +1,8 @@
 //! Triangle meshes: the object models of each category.
 
+use crate::geometry::Pose;
 use nalgebra::Point3;
+use std::path::{Path, PathBuf};
 
 /// An indexed triangle mesh in metres; triangles wind counter-clockwise seen from
 /// outside, so normals point outward.
@@ -10,4 +12,153 @@ pub struct TriMesh {
     pub vertices: Vec<Point3<f64>>,
     /// Triangles as indices into `vertices`.
     pub triangles: Vec<[u32; 3]>,
+}
+
+/// Errors of reading, writing or validating a mesh; each names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshError {
+    /// The file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The file's content is malformed at `location` (e.g. "line 12", "face 7").
+    #[error("{path}: {location}: {problem}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// Where in the file.
+        location: String,
+        /// What is wrong.
+        problem: String,
+    },
+    /// The file's extension names no supported format.
+    #[error("{path}: unsupported mesh format (use .obj, .stl or .ply)")]
+    UnsupportedFormat {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The mesh has no triangles (or no vertices).
+    #[error("{path}: mesh is empty ({vertices} vertices, {triangles} triangles)")]
+    Empty {
+        /// The file.
+        path: PathBuf,
+        /// Number of vertices.
+        vertices: usize,
+        /// Number of triangles.
+        triangles: usize,
+    },
+    /// A vertex coordinate is NaN or infinite.
+    #[error("{path}: vertex {vertex} has a non-finite coordinate {value}")]
+    NonFinite {
+        /// The file.
+        path: PathBuf,
+        /// Zero-based vertex index.
+        vertex: usize,
+        /// The offending coordinate.
+        value: f64,
+    },
+    /// A triangle refers to a vertex that does not exist.
+    #[error("{path}: triangle {triangle} uses vertex {index}, but there are only {vertices}")]
+    IndexOutOfRange {
+        /// The file.
+        path: PathBuf,
+        /// Zero-based triangle index.
+        triangle: usize,
+        /// The offending index.
+        index: u32,
+        /// Number of vertices.
+        vertices: usize,
+    },
+}
+
+impl TriMesh {
+    /// Checks that the mesh is non-empty, finite and its indices in range;
+    /// `source` names it in errors.
+    pub fn validate(&self, source: &Path) -> Result<(), MeshError> {
+        if self.vertices.is_empty() || self.triangles.is_empty() {
+            return Err(MeshError::Empty {
+                path: source.to_path_buf(),
+                vertices: self.vertices.len(),
+                triangles: self.triangles.len(),
+            });
+        }
+        for (vertex, v) in self.vertices.iter().enumerate() {
+            if let Some(&value) = v.coords.iter().find(|c| !c.is_finite()) {
+                return Err(MeshError::NonFinite {
+                    path: source.to_path_buf(),
+                    vertex,
+                    value,
+                });
+            }
+        }
+        let n = self.vertices.len();
+        for (triangle, t) in self.triangles.iter().enumerate() {
+            if let Some(&index) = t.iter().find(|&&i| i as usize >= n) {
+                return Err(MeshError::IndexOutOfRange {
+                    path: source.to_path_buf(),
+                    triangle,
+                    index,
+                    vertices: n,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The mesh with every vertex mapped by `target_from_mesh`.
+    pub fn transformed(&self, target_from_mesh: &Pose) -> TriMesh {
+        TriMesh {
+            vertices: self.vertices.iter().map(|v| target_from_mesh * v).collect(),
+            triangles: self.triangles.clone(),
+        }
+    }
+
+    /// The three corners of triangle `i`.
+    pub fn corners(&self, i: usize) -> [Point3<f64>; 3] {
+        let [a, b, c] = self.triangles[i];
+        [
+            self.vertices[a as usize],
+            self.vertices[b as usize],
+            self.vertices[c as usize],
+        ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn validation_names_the_problem() {
+        let path = Path::new("cup.obj");
+        let mut mesh = TriMesh {
+            vertices: vec![
+                Point3::origin(),
+                Point3::new(1.0, 0.0, 0.0),
+                Point3::new(0.0, 1.0, 0.0),
+            ],
+            triangles: vec![[0, 1, 2]],
+        };
+        mesh.validate(path).unwrap();
+        mesh.triangles.push([0, 1, 3]);
+        let err = mesh.validate(path).unwrap_err().to_string();
+        assert!(
+            err.contains("cup.obj") && err.contains("triangle 1 uses vertex 3"),
+            "{err}"
+        );
+        mesh.triangles.pop();
+        mesh.vertices[1].y = f64::NAN;
+        assert!(matches!(
+            mesh.validate(path),
+            Err(MeshError::NonFinite { vertex: 1, .. })
+        ));
+        assert!(matches!(
+            TriMesh::default().validate(path),
+            Err(MeshError::Empty { .. })
+        ));
+    }
 }
