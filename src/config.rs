@@ -261,7 +261,9 @@ impl CellConfig {
             ));
         }
         for i in 0..3 {
-            if !(self.workspace.min_m[i] < self.workspace.max_m[i]) {
+            if self.workspace.min_m[i].partial_cmp(&self.workspace.max_m[i])
+                != Some(std::cmp::Ordering::Less)
+            {
                 return Err(invalid(
                     "workspace.min_m/max_m",
                     format!("{:?} / {:?}", self.workspace.min_m, self.workspace.max_m),

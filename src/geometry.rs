@@ -181,7 +181,7 @@ impl PoseJson {
                 check_finite(&q, what)?;
                 let quat = nalgebra::Quaternion::new(q[3], q[0], q[1], q[2]);
                 let norm = quat.norm();
-                if !(norm > 1e-9) || !norm.is_finite() {
+                if norm <= 1e-9 || !norm.is_finite() {
                     return Err(GeometryError::BadQuaternion {
                         what: what.to_string(),
                         quat_xyzw: q,

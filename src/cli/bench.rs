@@ -24,7 +24,7 @@ pub struct IkBenchArgs {
     /// Seed of the random configurations.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Print JSON (always JSON; accepted for uniformity).
+    /// Print JSON (the benchmark always prints JSON; accepted for uniformity).
     #[arg(long)]
     pub json: bool,
 }

@@ -1,0 +1,226 @@
+//! Collision of the robot with the table and with itself (parry3d).
+//!
+//! Link shapes are the URDF's collision primitives. Pairs that may touch are
+//! derived as a setup assistant would: links joined by one joint (adjacent, skipping
+//! links without shapes) and links that already touch at the home (all-zero)
+//! configuration. Every other pair is checked. Links fixed to the robot base are not
+//! checked against the table (the base may stand on it).
+
+use super::description::{Primitive, RobotDescription};
+use super::kinematics::link_poses;
+use crate::config::TableConfig;
+use crate::geometry::Pose;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use parry3d_f64::query;
+use parry3d_f64::shape::{Ball, Capsule, Cuboid, Cylinder, SharedShape};
+
+/// What a configuration collides with.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Collision {
+    /// A link touches the table.
+    Table {
+        /// The link.
+        link: String,
+    },
+    /// Two links touch each other.
+    SelfCollision {
+        /// One link.
+        a: String,
+        /// The other link.
+        b: String,
+    },
+}
+
+impl std::fmt::Display for Collision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Collision::Table { link } => write!(f, "link {link} collides with the table"),
+            Collision::SelfCollision { a, b } => write!(f, "links {a} and {b} collide"),
+        }
+    }
+}
+
+/// The table as a collision box: its top face at `height_m`.
+pub fn table_box(table: &TableConfig) -> (Pose, Cuboid) {
+    let half = Vector3::new(
+        0.5 * table.extent_xy_m[0],
+        0.5 * table.extent_xy_m[1],
+        0.5 * table.thickness_m,
+    );
+    let pose = Isometry3::translation(
+        table.center_xy_m[0],
+        table.center_xy_m[1],
+        table.height_m - half.z,
+    );
+    (pose, Cuboid::new(half))
+}
+
+/// A parry shape for a primitive, with the rotation that maps parry's y-axis
+/// cylinders and capsules onto the URDF's z axis.
+pub fn parry_shape(primitive: &Primitive) -> (SharedShape, Pose) {
+    let y_to_z = Isometry3::from_parts(
+        Translation3::identity(),
+        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2),
+    );
+    match primitive {
+        Primitive::Box { size_m } => (
+            SharedShape::new(Cuboid::new(Vector3::from(*size_m) * 0.5)),
+            Pose::identity(),
+        ),
+        Primitive::Cylinder { radius_m, length_m } => (
+            SharedShape::new(Cylinder::new(0.5 * length_m, *radius_m)),
+            y_to_z,
+        ),
+        Primitive::Capsule { radius_m, length_m } => (
+            SharedShape::new(Capsule::new_y(0.5 * length_m, *radius_m)),
+            y_to_z,
+        ),
+        Primitive::Sphere { radius_m } => {
+            (SharedShape::new(Ball::new(*radius_m)), Pose::identity())
+        }
+    }
+}
+
+/// Shapes of every link and the pairs to check.
+#[derive(Clone)]
+pub struct CollisionModel {
+    names: Vec<String>,
+    /// Per link: (link_from_shape, shape).
+    shapes: Vec<Vec<(Pose, SharedShape)>>,
+    /// Links checked against the table.
+    table_links: Vec<usize>,
+    /// Link pairs checked against each other.
+    pairs: Vec<(usize, usize)>,
+    table: (Pose, Cuboid),
+}
+
+impl std::fmt::Debug for CollisionModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CollisionModel")
+            .field("links", &self.names)
+            .field("pairs", &self.pairs.len())
+            .finish()
+    }
+}
+
+impl CollisionModel {
+    /// Builds the model and its allowed-collision pairs.
+    pub fn new(description: &RobotDescription, table: &TableConfig) -> CollisionModel {
+        let shapes: Vec<Vec<(Pose, SharedShape)>> = description
+            .links
+            .iter()
+            .map(|l| {
+                l.shapes
+                    .iter()
+                    .map(|s| {
+                        let (shape, local) = parry_shape(&s.primitive);
+                        (s.link_from_shape * local, shape)
+                    })
+                    .collect()
+            })
+            .collect();
+        let names = description.links.iter().map(|l| l.name.clone()).collect();
+        // Nearest ancestor with shapes, and whether a link moves relative to the root.
+        let n = description.links.len();
+        let mut shaped_parent = vec![None; n];
+        let mut moves = vec![false; n];
+        for joint in &description.joints {
+            let p = joint.parent_link;
+            let c = joint.child_link;
+            shaped_parent[c] = if shapes[p].is_empty() {
+                shaped_parent[p]
+            } else {
+                Some(p)
+            };
+            moves[c] = moves[p] || !matches!(joint.motion, super::description::Motion::Fixed);
+        }
+        let table_links = (0..n)
+            .filter(|&l| moves[l] && !shapes[l].is_empty())
+            .collect();
+        let mut model = CollisionModel {
+            names,
+            shapes,
+            table_links,
+            pairs: Vec::new(),
+            table: table_box(table),
+        };
+        let home = link_poses(description, &vec![0.0; description.variables.len()]);
+        for a in 0..n {
+            for b in (a + 1)..n {
+                if model.shapes[a].is_empty() || model.shapes[b].is_empty() {
+                    continue;
+                }
+                let adjacent = shaped_parent[b] == Some(a) || shaped_parent[a] == Some(b);
+                if adjacent || model.links_touch(a, b, &home) {
+                    continue;
+                }
+                model.pairs.push((a, b));
+            }
+        }
+        model
+    }
+
+    /// Number of link pairs checked for self-collision.
+    pub fn checked_pairs(&self) -> usize {
+        self.pairs.len()
+    }
+
+    fn links_touch(&self, a: usize, b: usize, poses: &[Pose]) -> bool {
+        self.shapes[a].iter().any(|(la, sa)| {
+            self.shapes[b].iter().any(|(lb, sb)| {
+                query::intersection_test(
+                    &(poses[a] * la),
+                    sa.as_ref(),
+                    &(poses[b] * lb),
+                    sb.as_ref(),
+                )
+                .unwrap_or(true)
+            })
+        })
+    }
+
+    /// True when link `link` at pose `world_from_link` touches the table.
+    pub fn link_hits_table(&self, link: usize, world_from_link: &Pose) -> bool {
+        let (table_pose, table) = &self.table;
+        self.shapes[link].iter().any(|(local, shape)| {
+            query::intersection_test(
+                &(world_from_link * local),
+                shape.as_ref(),
+                table_pose,
+                table,
+            )
+            .unwrap_or(true)
+        })
+    }
+
+    /// The first collision of the links at `poses` (all links, from `link_poses`).
+    pub fn check(&self, poses: &[Pose]) -> Option<Collision> {
+        if let Some(&link) = self
+            .table_links
+            .iter()
+            .find(|&&l| self.link_hits_table(l, &poses[l]))
+        {
+            return Some(Collision::Table {
+                link: self.names[link].clone(),
+            });
+        }
+        self.pairs
+            .iter()
+            .find(|&&(a, b)| self.links_touch(a, b, poses))
+            .map(|&(a, b)| Collision::SelfCollision {
+                a: self.names[a].clone(),
+                b: self.names[b].clone(),
+            })
+    }
+
+    /// The first of `links` (at `poses`) that touches the table.
+    pub fn first_on_table(&self, links: &[usize], poses: &[Pose]) -> Option<Collision> {
+        links
+            .iter()
+            .find(|&&l| !self.shapes[l].is_empty() && self.link_hits_table(l, &poses[l]))
+            .map(|&l| Collision::Table {
+                link: self.names[l].clone(),
+            })
+    }
+}
