@@ -193,7 +193,10 @@ fn import_rows(text: &str, path: &Path) -> Result<(Vec<ImportRow>, ImportSummary
     };
     let records = parse_csv(text, path)?;
     let Some((header, rows)) = records.split_first() else {
-        return Err(err(1, "empty file (expected a header: trial_id,grade,cause,note)".into()));
+        return Err(err(
+            1,
+            "empty file (expected a header: trial_id,grade,cause,note)".into(),
+        ));
     };
     let column = |name: &str| {
         header
@@ -233,7 +236,10 @@ fn import_rows(text: &str, path: &Path) -> Result<(Vec<ImportRow>, ImportSummary
             .parse()
             .map_err(|_| err(rec.line, format!("trial_id {id_text:?} is not an integer")))?;
         if let Some(first) = seen.insert(id, rec.line) {
-            return Err(err(rec.line, format!("trial {id} is also graded on line {first}")));
+            return Err(err(
+                rec.line,
+                format!("trial {id} is also graded on line {first}"),
+            ));
         }
         let grade = rec.fields[grade_col].trim();
         if grade.is_empty() {
@@ -307,7 +313,9 @@ impl TrialLog {
             let fields: [String; 16] = [
                 t.id.to_string(),
                 g.map(|g| g.grade.to_string()).unwrap_or_default(),
-                g.and_then(|g| g.cause).map(|c| c.to_string()).unwrap_or_default(),
+                g.and_then(|g| g.cause)
+                    .map(|c| c.to_string())
+                    .unwrap_or_default(),
                 g.and_then(|g| g.note.clone()).unwrap_or_default(),
                 t.graded_at.map(|a| a.to_string()).unwrap_or_default(),
                 t.grade_source.map(|s| s.to_string()).unwrap_or_default(),
@@ -317,7 +325,11 @@ impl TrialLog {
                 t.trial.task.clone(),
                 t.trial.method.clone(),
                 t.trial.object.name.clone(),
-                t.trial.object.seed.map(|s| s.to_string()).unwrap_or_default(),
+                t.trial
+                    .object
+                    .seed
+                    .map(|s| s.to_string())
+                    .unwrap_or_default(),
                 t.trial.placement.index.to_string(),
                 t.trial
                     .snapshot_path
@@ -382,7 +394,14 @@ mod tests {
 
     #[test]
     fn written_fields_parse_back() {
-        let row = ["plain", "with,comma", "with \"quote\"", "two\nlines", " padded ", ""];
+        let row = [
+            "plain",
+            "with,comma",
+            "with \"quote\"",
+            "two\nlines",
+            " padded ",
+            "",
+        ];
         let text = csv_line(&row);
         let got = parse_csv(&text, p()).unwrap();
         assert_eq!(got[0].fields, row.map(String::from).to_vec());
@@ -391,11 +410,23 @@ mod tests {
     #[test]
     fn import_rows_validate_each_line() {
         let cases = [
-            ("trial_id,grade\n1,success\nx,failure\n", 3, "not an integer"),
+            (
+                "trial_id,grade\n1,success\nx,failure\n",
+                3,
+                "not an integer",
+            ),
             ("trial_id,grade,cause\n1,failure,\n", 2, "needs a cause"),
             ("trial_id,grade,cause\n1,great,\n", 2, "invalid grade"),
-            ("trial_id,grade,cause\n1,failure,gremlins\n", 2, "invalid failure cause"),
-            ("trial_id,grade\n1,success\n1,partial\n", 3, "also graded on line 2"),
+            (
+                "trial_id,grade,cause\n1,failure,gremlins\n",
+                2,
+                "invalid failure cause",
+            ),
+            (
+                "trial_id,grade\n1,success\n1,partial\n",
+                3,
+                "also graded on line 2",
+            ),
             ("trial_id,grade\n1,success,extra\n", 2, "3 fields"),
             ("id,result\n1,success\n", 1, "lacks trial_id"),
             ("", 1, "empty file"),
@@ -411,9 +442,11 @@ mod tests {
                 Ok(_) => panic!("{text:?}: accepted"),
             }
         }
-        let (rows, summary) =
-            import_rows("Trial_ID,Grade,Cause,Note\n4,f,Registration,\"slid, fell\"\n5,,,\n", p())
-                .unwrap();
+        let (rows, summary) = import_rows(
+            "Trial_ID,Grade,Cause,Note\n4,f,Registration,\"slid, fell\"\n5,,,\n",
+            p(),
+        )
+        .unwrap();
         assert_eq!((summary.rows, summary.blank, rows.len()), (2, 1, 1));
         assert_eq!(rows[0].id, 4);
         assert_eq!(rows[0].grading.note.as_deref(), Some("slid, fell"));

@@ -214,14 +214,16 @@ impl Grading {
             (Grade::Success, Some(cause)) => return Err(TrialError::CauseOnSuccess { cause }),
             _ => {}
         }
-        let note = note
-            .map(|n| n.trim().to_string())
-            .filter(|n| !n.is_empty());
+        let note = note.map(|n| n.trim().to_string()).filter(|n| !n.is_empty());
         Ok(Grading { grade, cause, note })
     }
 
     /// Parses a grade and an optional cause from text (empty cause text = none).
-    pub fn parse(grade: &str, cause: Option<&str>, note: Option<String>) -> Result<Self, TrialError> {
+    pub fn parse(
+        grade: &str,
+        cause: Option<&str>,
+        note: Option<String>,
+    ) -> Result<Self, TrialError> {
         let grade: Grade = grade.parse()?;
         let cause = cause
             .map(str::trim)
@@ -286,7 +288,14 @@ pub(super) fn apply_grade(
         "UPDATE trials SET grade = ?2, failure_cause = ?3, observer_note = ?4, graded_at = ?5,
              grade_source = ?6
          WHERE id = ?1",
-        params![id, grading.grade.as_str(), cause, grading.note, at_text, source.as_str()],
+        params![
+            id,
+            grading.grade.as_str(),
+            cause,
+            grading.note,
+            at_text,
+            source.as_str()
+        ],
     )
     .map_err(sql("set grade"))?;
     Ok(previous)
@@ -321,6 +330,9 @@ pub(super) fn current_grading(
         .transpose()
 }
 
+/// A `grade_history` row as stored: grade, cause, note, graded_at, source.
+type HistoryRow = (String, Option<String>, Option<String>, String, String);
+
 impl TrialLog {
     /// Grades trial `id` in one transaction: sets its current grade and appends to its
     /// history. Returns the grade it replaced, if any. An unknown id is an error and
@@ -333,7 +345,9 @@ impl TrialLog {
         at: UtcTimestamp,
     ) -> Result<Option<Grading>, TrialError> {
         let path = self.path.clone();
-        self.write("grade trial", |tx| apply_grade(tx, &path, id, grading, source, at))
+        self.write("grade trial", |tx| {
+            apply_grade(tx, &path, id, grading, source, at)
+        })
     }
 
     /// Every grade trial `id` has been given, oldest first.
@@ -350,8 +364,10 @@ impl TrialLog {
                  FROM grade_history WHERE trial_id = ?1 ORDER BY id",
             )
             .map_err(sql)?;
-        let rows: Vec<(String, Option<String>, Option<String>, String, String)> = stmt
-            .query_map([id], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?)))
+        let rows: Vec<HistoryRow> = stmt
+            .query_map([id], |r| {
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
+            })
             .and_then(|rows| rows.collect())
             .map_err(sql)?;
         rows.into_iter()
@@ -404,10 +420,17 @@ pub fn prompt_grade<R: BufRead, W: Write>(
     mut output: W,
 ) -> Result<Grading, TrialError> {
     let grade = loop {
-        let answer = ask(&mut input, &mut output, "Grade: [s]uccess, [p]artial, [f]ailure? ")?;
+        let answer = ask(
+            &mut input,
+            &mut output,
+            "Grade: [s]uccess, [p]artial, [f]ailure? ",
+        )?;
         match answer.parse::<Grade>() {
             Ok(grade) => break grade,
-            Err(_) => say(&mut output, &format!("  {answer:?} is not a grade; type s, p or f."))?,
+            Err(_) => say(
+                &mut output,
+                &format!("  {answer:?} is not a grade; type s, p or f."),
+            )?,
         }
     };
     let cause = if grade == Grade::Success {
@@ -485,8 +508,14 @@ mod tests {
             "shape_dissimilarity".parse::<FailureCause>().unwrap(),
             FailureCause::ShapeDissimilarity
         );
-        assert!(matches!("sucess".parse::<Grade>(), Err(TrialError::InvalidGrade { .. })));
-        assert!(matches!("gravity".parse::<FailureCause>(), Err(TrialError::InvalidCause { .. })));
+        assert!(matches!(
+            "sucess".parse::<Grade>(),
+            Err(TrialError::InvalidGrade { .. })
+        ));
+        assert!(matches!(
+            "gravity".parse::<FailureCause>(),
+            Err(TrialError::InvalidCause { .. })
+        ));
         assert_eq!(
             [Grade::Success, Grade::Partial, Grade::Failure].map(Grade::score),
             [1, 0, -1]
@@ -506,14 +535,20 @@ mod tests {
         let g = Grading::new(Grade::Partial, None, Some("  ".into())).unwrap();
         assert_eq!(g.note, None);
         let g = Grading::parse("p", Some(""), Some(" slipped ".into())).unwrap();
-        assert_eq!((g.grade, g.cause, g.note.as_deref()), (Grade::Partial, None, Some("slipped")));
+        assert_eq!(
+            (g.grade, g.cause, g.note.as_deref()),
+            (Grade::Partial, None, Some("slipped"))
+        );
     }
 
     #[test]
     fn prompt_success_asks_no_cause() {
         let (g, out) = prompt("s\nclean lift\n");
         let g = g.unwrap();
-        assert_eq!(g, Grading::new(Grade::Success, None, Some("clean lift".into())).unwrap());
+        assert_eq!(
+            g,
+            Grading::new(Grade::Success, None, Some("clean lift".into())).unwrap()
+        );
         assert!(!out.contains("Cause"));
     }
 
@@ -534,7 +569,10 @@ mod tests {
         let (g, _) = prompt("p\n2\nhandle only\n");
         assert_eq!(g.unwrap().cause, Some(FailureCause::Registration));
         let (g, _) = prompt("partial\n\n\n");
-        assert_eq!(g.unwrap(), Grading::new(Grade::Partial, None, None).unwrap());
+        assert_eq!(
+            g.unwrap(),
+            Grading::new(Grade::Partial, None, None).unwrap()
+        );
     }
 
     #[test]

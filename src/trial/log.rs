@@ -19,7 +19,9 @@ use super::grade::{FailureCause, Grade, GradeSource, Grading};
 use super::time::UtcTimestamp;
 use super::{software_version, TrialError};
 use crate::geometry::PoseJson;
-use rusqlite::{params, Connection, OpenFlags, OptionalExtension, Transaction, TransactionBehavior};
+use rusqlite::{
+    params, Connection, OpenFlags, OptionalExtension, Transaction, TransactionBehavior,
+};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -282,7 +284,8 @@ impl TrialLog {
             | OpenFlags::SQLITE_OPEN_URI
             | create;
         let conn = Connection::open_with_flags(path, flags).map_err(sql("open"))?;
-        conn.busy_timeout(BUSY_TIMEOUT).map_err(sql("busy_timeout"))?;
+        conn.busy_timeout(BUSY_TIMEOUT)
+            .map_err(sql("busy_timeout"))?;
         let log = TrialLog {
             conn,
             path: path.to_path_buf(),
@@ -391,7 +394,12 @@ impl TrialLog {
     }
 
     /// Applies every migration newer than the file's version, in one transaction.
+    /// A log already at the newest version is not written to at all.
     fn migrate(&mut self, migrations: &[Migration]) -> Result<(), TrialError> {
+        let supported = migrations.last().map_or(0, |m| m.version);
+        if self.schema_version()? == supported {
+            return Ok(());
+        }
         let path = self.path.clone();
         self.write("migrate schema", |tx| {
             let sql = |op: &'static str| {
@@ -416,7 +424,8 @@ impl TrialLog {
                     |row| row.get(0),
                 )
                 .map_err(sql("read schema version"))?;
-            let supported = migrations.last().map_or(0, |m| m.version);
+            // Another process may have migrated between the check above and this
+            // transaction; the version read here, under the write lock, decides.
             if current > supported {
                 return Err(TrialError::NewerSchema {
                     path: path.clone(),
@@ -577,7 +586,11 @@ impl TrialLog {
     }
 
     /// Records the execution outcome of a trial.
-    pub fn set_outcome(&mut self, id: TrialId, outcome: &serde_json::Value) -> Result<(), TrialError> {
+    pub fn set_outcome(
+        &mut self,
+        id: TrialId,
+        outcome: &serde_json::Value,
+    ) -> Result<(), TrialError> {
         self.update_one(
             id,
             "record outcome",
@@ -603,7 +616,10 @@ impl TrialLog {
                     source,
                 })?;
             if changed == 0 {
-                return Err(TrialError::UnknownTrial { path: path.clone(), id });
+                return Err(TrialError::UnknownTrial {
+                    path: path.clone(),
+                    id,
+                });
             }
             Ok(())
         })
@@ -629,7 +645,10 @@ impl TrialLog {
     /// Every trial, in id order.
     pub fn trials(&self) -> Result<Vec<TrialRecord>, TrialError> {
         let sql = format!("SELECT {TRIAL_COLUMNS} FROM trials ORDER BY id");
-        let mut stmt = self.conn.prepare(&sql).map_err(self.sql_err("read trials"))?;
+        let mut stmt = self
+            .conn
+            .prepare(&sql)
+            .map_err(self.sql_err("read trials"))?;
         let raws: Vec<RawRow> = stmt
             .query_map([], RawRow::read)
             .and_then(|rows| rows.collect())
@@ -701,7 +720,10 @@ fn validate_trial(trial: &NewTrial) -> Result<(), TrialError> {
     if let Some(joints) = &trial.planned_joints {
         check_finite_field("planned_joints", joints.iter().copied())?;
     }
-    for (field, value) in [("fits", Some(&trial.fits)), ("outcome", trial.outcome.as_ref())] {
+    for (field, value) in [
+        ("fits", Some(&trial.fits)),
+        ("outcome", trial.outcome.as_ref()),
+    ] {
         if value.is_some_and(|v| !json_numbers_finite(v)) {
             return Err(TrialError::InvalidTrial {
                 field,
@@ -800,7 +822,10 @@ impl RawRow {
             .map_err(|e: TrialError| bad("started_at", e.to_string()))?;
         let object_seed = self
             .object_seed
-            .map(|s| s.parse::<u64>().map_err(|e| bad("object_seed", format!("{s:?}: {e}"))))
+            .map(|s| {
+                s.parse::<u64>()
+                    .map_err(|e| bad("object_seed", format!("{s:?}: {e}")))
+            })
             .transpose()?;
         let placement_index = u32::try_from(self.placement_index)
             .map_err(|_| bad("placement_index", self.placement_index.to_string()))?;
@@ -810,18 +835,29 @@ impl RawRow {
             .transpose()?;
         let cause = self
             .failure_cause
-            .map(|c| c.parse::<FailureCause>().map_err(|e| bad("failure_cause", e.to_string())))
+            .map(|c| {
+                c.parse::<FailureCause>()
+                    .map_err(|e| bad("failure_cause", e.to_string()))
+            })
             .transpose()?;
         let grading = grade
-            .map(|g| Grading::new(g, cause, self.observer_note).map_err(|e| bad("grade", e.to_string())))
+            .map(|g| {
+                Grading::new(g, cause, self.observer_note).map_err(|e| bad("grade", e.to_string()))
+            })
             .transpose()?;
         let graded_at = self
             .graded_at
-            .map(|t| t.parse().map_err(|e: TrialError| bad("graded_at", e.to_string())))
+            .map(|t| {
+                t.parse()
+                    .map_err(|e: TrialError| bad("graded_at", e.to_string()))
+            })
             .transpose()?;
         let grade_source = self
             .grade_source
-            .map(|s| s.parse().map_err(|e: TrialError| bad("grade_source", e.to_string())))
+            .map(|s| {
+                s.parse()
+                    .map_err(|e: TrialError| bad("grade_source", e.to_string()))
+            })
             .transpose()?;
         Ok(TrialRecord {
             id,
@@ -851,5 +887,220 @@ impl RawRow {
             graded_at,
             grade_source,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    /// A unique empty directory for one test, removed on drop.
+    struct TempDir(PathBuf);
+
+    impl TempDir {
+        fn new(name: &str) -> Self {
+            static COUNTER: AtomicUsize = AtomicUsize::new(0);
+            let dir = std::env::temp_dir().join(format!(
+                "graspcell-trial-log-{name}-{}-{}",
+                std::process::id(),
+                COUNTER.fetch_add(1, Ordering::Relaxed)
+            ));
+            let _ = std::fs::remove_dir_all(&dir);
+            std::fs::create_dir_all(&dir).unwrap();
+            TempDir(dir)
+        }
+    }
+
+    impl Drop for TempDir {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+
+    fn sample_trial() -> NewTrial {
+        NewTrial {
+            started_at: "2025-03-01T14:05:09.250Z".parse().unwrap(),
+            category: "mug".into(),
+            task: "pour".into(),
+            method: "laplace".into(),
+            object: ObjectRef {
+                name: "mug-novel-3".into(),
+                seed: Some(u64::MAX),
+            },
+            placement: Placement {
+                index: 4,
+                base_from_object: PoseJson {
+                    xyz: [0.55, -0.1, 0.02],
+                    rpy: Some([0.0, 0.0, 1.2]),
+                    quat_xyzw: None,
+                },
+            },
+            campaign_id: Some("c-2025-03-01".into()),
+            snapshot_path: Some(PathBuf::from("snapshots/t1.pcd")),
+            fits: serde_json::json!([{"model": "mug-1", "eps": 0.004, "sigma": 0.01}]),
+            planned_pose: None,
+            planned_joints: None,
+            outcome: None,
+            seeds: [("registration".to_string(), 7_u64), ("plan".to_string(), 9)].into(),
+        }
+    }
+
+    #[test]
+    fn records_and_reads_back_every_field() {
+        let dir = TempDir::new("roundtrip");
+        let path = dir.0.join("sub/trials.sqlite");
+        let mut log = TrialLog::open(&path).unwrap();
+        assert_eq!(log.schema_version().unwrap(), SCHEMA_VERSION);
+        let mode: String = log
+            .conn
+            .pragma_query_value(None, "journal_mode", |r| r.get(0))
+            .unwrap();
+        assert_eq!(mode, "wal");
+        let sync: i64 = log
+            .conn
+            .pragma_query_value(None, "synchronous", |r| r.get(0))
+            .unwrap();
+        assert_eq!(sync, 2, "synchronous=FULL");
+        let trial = sample_trial();
+        let id = log.record_trial(&trial).unwrap();
+        let pose = PoseJson {
+            xyz: [0.5, 0.0, 0.3],
+            rpy: Some([3.1, 0.0, 0.0]),
+            quat_xyzw: None,
+        };
+        log.set_plan(id, &pose, &[0.1, -0.2, 0.3, 1.4, 0.0, -0.5, 0.6])
+            .unwrap();
+        log.set_outcome(id, &serde_json::json!({"lifted": true, "hold_s": 2.0}))
+            .unwrap();
+        drop(log);
+
+        let log = TrialLog::open_existing(&path).unwrap();
+        let got = log.trial(id).unwrap();
+        let mut want = trial;
+        want.planned_pose = Some(pose);
+        want.planned_joints = Some(vec![0.1, -0.2, 0.3, 1.4, 0.0, -0.5, 0.6]);
+        want.outcome = Some(serde_json::json!({"lifted": true, "hold_s": 2.0}));
+        assert_eq!(got.trial, want);
+        assert_eq!(got.software_version, software_version());
+        assert_eq!(got.grading, None);
+        assert_eq!(log.trials().unwrap().len(), 1);
+        drop(log);
+        // Opening and reading an up-to-date log writes nothing.
+        let before = std::fs::read(&path).unwrap();
+        let log = TrialLog::open(&path).unwrap();
+        assert_eq!(log.trial(id).unwrap().trial, want);
+        drop(log);
+        assert_eq!(std::fs::read(&path).unwrap(), before);
+        let log = TrialLog::open_existing(&path).unwrap();
+        assert!(matches!(
+            log.trial(id + 1),
+            Err(TrialError::UnknownTrial { id: i, .. }) if i == id + 1
+        ));
+    }
+
+    #[test]
+    fn updates_of_unknown_trials_and_invalid_trials_are_refused() {
+        let dir = TempDir::new("invalid");
+        let mut log = TrialLog::open(dir.0.join("t.sqlite")).unwrap();
+        assert!(matches!(
+            log.set_outcome(42, &serde_json::Value::Null),
+            Err(TrialError::UnknownTrial { id: 42, .. })
+        ));
+        let mut t = sample_trial();
+        t.method = " ".into();
+        assert!(matches!(
+            log.record_trial(&t),
+            Err(TrialError::InvalidTrial {
+                field: "method",
+                ..
+            })
+        ));
+        let mut t = sample_trial();
+        t.placement.base_from_object.xyz[1] = f64::NAN;
+        assert!(matches!(
+            log.record_trial(&t),
+            Err(TrialError::InvalidTrial {
+                field: "placement",
+                ..
+            })
+        ));
+        assert_eq!(log.trial_count().unwrap(), 0);
+    }
+
+    const FAKE: [Migration; 2] = [
+        Migration {
+            version: 1,
+            description: "a",
+            sql: "CREATE TABLE a (x INTEGER);",
+        },
+        Migration {
+            version: 2,
+            description: "a.y",
+            sql: "ALTER TABLE a ADD COLUMN y TEXT; INSERT INTO a (x, y) VALUES (1, 'migrated');",
+        },
+    ];
+
+    #[test]
+    fn migrations_apply_in_order_once_and_refuse_newer_files() {
+        let dir = TempDir::new("migrate");
+        let path = dir.0.join("m.sqlite");
+        let create = OpenFlags::SQLITE_OPEN_CREATE;
+        let log = TrialLog::open_with(&path, create, &FAKE[..1]).unwrap();
+        assert_eq!(log.schema_version().unwrap(), 1);
+        drop(log);
+        for _ in 0..2 {
+            let log = TrialLog::open_with(&path, create, &FAKE).unwrap();
+            assert_eq!(log.schema_version().unwrap(), 2);
+            let rows: i64 = log
+                .conn
+                .query_row("SELECT COUNT(*) FROM a WHERE y = 'migrated'", [], |r| {
+                    r.get(0)
+                })
+                .unwrap();
+            assert_eq!(rows, 1, "the v2 migration ran exactly once");
+            let versions: i64 = log
+                .conn
+                .query_row("SELECT COUNT(*) FROM schema_version", [], |r| r.get(0))
+                .unwrap();
+            assert_eq!(versions, 2);
+        }
+        let before = std::fs::read(&path).unwrap();
+        match TrialLog::open_with(&path, create, &FAKE[..1]) {
+            Err(TrialError::NewerSchema {
+                found: 2,
+                supported: 1,
+                ..
+            }) => {}
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(std::fs::read(&path).unwrap(), before);
+    }
+
+    #[test]
+    fn other_sqlite_databases_are_refused_and_left_alone() {
+        let dir = TempDir::new("foreign");
+        let path = dir.0.join("other.sqlite");
+        {
+            let conn = Connection::open(&path).unwrap();
+            conn.execute_batch(
+                "CREATE TABLE photos (id INTEGER, name TEXT); INSERT INTO photos VALUES (1, 'x');",
+            )
+            .unwrap();
+        }
+        let before = std::fs::read(&path).unwrap();
+        let err = TrialLog::open(&path).unwrap_err();
+        assert!(matches!(err, TrialError::ForeignSchema { .. }), "{err:?}");
+        let msg = err.to_string();
+        assert!(
+            msg.contains("other.sqlite") && msg.contains("photos"),
+            "{msg}"
+        );
+        assert_eq!(std::fs::read(&path).unwrap(), before);
+        assert!(matches!(
+            TrialLog::open_existing(dir.0.join("absent.sqlite")),
+            Err(TrialError::Missing { .. })
+        ));
+        assert!(!dir.0.join("absent.sqlite").exists());
     }
 }

@@ -109,7 +109,10 @@ impl Report {
             .collect();
         let mut by_method: BTreeMap<&str, Vec<&TrialRecord>> = BTreeMap::new();
         for t in &selected {
-            by_method.entry(t.trial.method.as_str()).or_default().push(t);
+            by_method
+                .entry(t.trial.method.as_str())
+                .or_default()
+                .push(t);
         }
         let methods: Vec<String> = by_method.keys().map(|m| m.to_string()).collect();
 
@@ -166,7 +169,11 @@ impl Report {
             .map(|(cause, counts)| CauseRow {
                 cause: cause.to_string(),
                 counts: counts.clone(),
-                percent: counts.iter().enumerate().map(|(c, &n)| pct(n, graded_of(c))).collect(),
+                percent: counts
+                    .iter()
+                    .enumerate()
+                    .map(|(c, &n)| pct(n, graded_of(c)))
+                    .collect(),
             })
             .collect();
         let total_counts: Vec<u64> = summaries.iter().map(|s| s.failure).collect();
@@ -326,7 +333,13 @@ mod tests {
     use crate::trial::log::{NewTrial, ObjectRef, Placement};
     use crate::trial::time::UtcTimestamp;
 
-    fn record(id: i64, method: &str, object: &str, placement: u32, grade: Option<(&str, Option<&str>)>) -> TrialRecord {
+    fn record(
+        id: i64,
+        method: &str,
+        object: &str,
+        placement: u32,
+        grade: Option<(&str, Option<&str>)>,
+    ) -> TrialRecord {
         TrialRecord {
             id,
             trial: NewTrial {
@@ -372,12 +385,21 @@ mod tests {
             record(6, "b", "m2", 0, Some(("success", None))),
             record(7, "a", "m2", 1, None),
             // Repeat of b/m2/0: the later grade (failure) replaces the success.
-            record(8, "b", "m2", 0, Some(("failure", Some("shape-dissimilarity")))),
+            record(
+                8,
+                "b",
+                "m2",
+                0,
+                Some(("failure", Some("shape-dissimilarity"))),
+            ),
         ];
         let r = Report::from_trials(&trials, None);
         assert_eq!((r.trials, r.graded, r.ungraded, r.superseded), (8, 7, 1, 1));
         let a = &r.methods[0];
-        assert_eq!((a.trials, a.graded, a.success, a.partial, a.failure), (4, 3, 1, 1, 1));
+        assert_eq!(
+            (a.trials, a.graded, a.success, a.partial, a.failure),
+            (4, 3, 1, 1, 1)
+        );
         assert!((a.success_pct.unwrap() - 100.0 / 3.0).abs() < 1e-12);
         let b = &r.methods[1];
         assert_eq!((b.graded, b.success, b.partial, b.failure), (4, 1, 1, 2));

@@ -92,7 +92,12 @@ impl FromStr for UtcTimestamp {
             text: text.to_string(),
         };
         let b = text.as_bytes();
-        if !text.is_ascii() || b.len() < 20 || b[4] != b'-' || b[7] != b'-' || !(b[10] == b'T' || b[10] == b' ') {
+        if !text.is_ascii()
+            || b.len() < 20
+            || b[4] != b'-'
+            || b[7] != b'-'
+            || !(b[10] == b'T' || b[10] == b' ')
+        {
             return Err(bad());
         }
         if b[13] != b':' || b[16] != b':' || *b.last().ok_or_else(bad)? != b'Z' {
@@ -124,9 +129,7 @@ impl FromStr for UtcTimestamp {
             0
         } else {
             let digits = frac.strip_prefix('.').ok_or_else(bad)?;
-            if digits.is_empty()
-                || digits.len() > 9
-                || !digits.bytes().all(|c| c.is_ascii_digit())
+            if digits.is_empty() || digits.len() > 9 || !digits.bytes().all(|c| c.is_ascii_digit())
             {
                 return Err(bad());
             }
