@@ -1,3 +1,4 @@
 //! Integration and hardware-in-loop tests, built as one binary (one link step).
 
 mod shipped_files;
+mod trial;

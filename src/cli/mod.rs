@@ -6,6 +6,7 @@
 pub mod bench;
 mod output;
 mod robot;
+mod trial;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -34,6 +35,13 @@ pub enum Command {
     Ik(robot::IkArgs),
     /// Print the effective cell configuration (defaults and file) as TOML.
     PrintConfig,
+    /// Grade a trial: success, partial or failure, and a failure's cause.
+    Grade(trial::GradeArgs),
+    /// Report on the trial log: rates per method, failure causes, sign tests, charts.
+    Report(trial::ReportArgs),
+    /// The trial log's grades kept on paper: CSV import and export.
+    #[command(subcommand)]
+    Log(trial::LogCommand),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -62,6 +70,9 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             print!("{}", toml::to_string_pretty(&config)?);
             Ok(ExitCode::SUCCESS)
         }
+        Command::Grade(args) => trial::grade(args),
+        Command::Report(args) => trial::report(args),
+        Command::Log(which) => trial::log(which),
         Command::Bench(which) => bench::run(&cli.config, which),
     }
 }
