@@ -67,7 +67,7 @@ pub fn daniilidis(samples: &[PoseSample]) -> Result<Pose, CalibError> {
         eig.eigenvalues[order[2]],
     );
     let condition = (l2 / l3.max(f64::MIN_POSITIVE)).sqrt();
-    if !(l3 > 0.0) || condition > 0.5 {
+    if l3.is_nan() || l3 <= 0.0 || condition.is_nan() || condition > 0.5 {
         return Err(CalibError::Singular {
             what: "daniilidis null space",
             condition,

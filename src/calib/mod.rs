@@ -52,8 +52,8 @@
 //! - [`refine`]: Levenberg–Marquardt over all samples on the residuals of
 //!   `F_i Y = X C_i`: translation `t(F_i Y) − t(X C_i)` divided by
 //!   [`Weights::translation_m`] and rotation `log(R(X C_i)ᵀ R(F_i Y))` divided by
-//!   [`Weights::rotation_rad`] (defaults: 1 mm weighs as much as 0.2°, the typical
-//!   noise of a board detector at 1 m). Point samples contribute the translation
+//!   [`Weights::rotation_rad`] (defaults: 0.5 mm weighs as much as 0.2°, the noise
+//!   per axis of a board detector at about 1 m). Point samples contribute the translation
 //!   residual only. Steps are accepted only when they lower the cost, so the result
 //!   is never worse than the start.
 //!
@@ -68,8 +68,14 @@
 //! axes that are (nearly) parallel ([`MIN_AXIS_SPREAD_DEG`]: the rotation of the
 //! camera about that axis cannot be observed). For pose samples [`check_frames`]
 //! uses the screw congruence of `A` and `B` (same angle, same translation along the
-//! axis) to catch inverted poses (`flange_from_base`, `target_from_camera`, an
-//! eye-in-hand setup) and mismatched samples before they turn into a wrong answer.
+//! axis) to catch mismatched samples, a wrong quaternion order and mixed units.
+//! Inverting every robot pose or every observation keeps each pair congruent (the
+//! screw invariants of `M` and `N M⁻¹ N⁻¹` agree), so [`solve`] catches those by
+//! their residuals: when the best solution misses by more than
+//! [`GROSS_RMS_MM`] or [`GROSS_RMS_DEG`] it solves again with the robot poses
+//! inverted and, if that fits, says so: one side of each sample is inverted
+//! (`flange_from_base`, `target_from_camera`; the two cannot be told apart, since
+//! inverting both swaps `X` and `Y` and fits) or the data is eye-in-hand.
 //! Each error says what to change.
 //!
 //! # Sample file (`calib/samples-DATE.json`)
@@ -123,7 +129,7 @@ pub use refine::{refine, Refined, Weights};
 pub use residuals::{evaluate, fit_target, Evaluation, ResidualStats, SampleResidual};
 pub use result_file::HandEyeResult;
 pub use samples::{PointSample, PoseSample, Sample, SampleFile};
-pub use solve::{solve, Method, MethodResult, Solution, SolveOptions};
+pub use solve::{solve, Method, MethodResult, Solution, SolveOptions, GROSS_RMS_DEG, GROSS_RMS_MM};
 pub use tsai_park::{park_martin, tsai_lenz};
 
 use crate::geometry::Pose;
@@ -243,6 +249,18 @@ pub enum CalibError {
         angle_deg: f64,
         /// Median difference of translations along the screw axis (mm).
         pitch_mm: f64,
+        /// What probably went wrong and what to check.
+        hint: String,
+    },
+    /// Even the best solution misses the samples grossly.
+    #[error("the best solution ({method}) misses the samples by {rms_mm:.1} mm{} RMS (limit {} mm, {}°): {hint}", .rms_deg.map(|d| format!(" / {d:.2}°")).unwrap_or_default(), GROSS_RMS_MM, GROSS_RMS_DEG)]
+    ResidualsTooLarge {
+        /// The method of the best solution.
+        method: String,
+        /// Its RMS translation residual (mm).
+        rms_mm: f64,
+        /// Its RMS rotation residual (deg), with pose samples.
+        rms_deg: Option<f64>,
         /// What probably went wrong and what to check.
         hint: String,
     },

@@ -164,7 +164,9 @@ fn congruent(angle: f64, pitch: f64) -> bool {
 
 /// Checks that robot and target motions are congruent (`A = X B X⁻¹` turns by the
 /// same angle and moves by the same amount along its axis as `B`), which catches
-/// inverted poses, eye-in-hand data and mismatched samples before solving.
+/// mismatched samples, a wrong quaternion order and mixed units before solving.
+/// (Inverting every robot pose, or every observation, keeps each pair congruent;
+/// [`solve`](super::solve) catches that by its residuals.)
 pub fn check_frames(samples: &[PoseSample]) -> Result<(), CalibError> {
     let pairs = motion_pairs(samples);
     let Some((angle, pitch, n)) = congruence(pairs.iter().map(|p| (p.a, p.b))) else {
@@ -173,24 +175,12 @@ pub fn check_frames(samples: &[PoseSample]) -> Result<(), CalibError> {
     if congruent(angle, pitch) {
         return Ok(());
     }
-    // Would the samples fit with the robot poses inverted?
-    let inverted = samples.iter().enumerate().flat_map(|(i, si)| {
-        samples[i + 1..].iter().map(move |sj| {
-            (
-                sj.base_from_flange.inverse() * si.base_from_flange,
-                sj.camera_from_target * si.camera_from_target.inverse(),
-            )
-        })
-    });
-    let hint = match congruence(inverted) {
-        Some((a, p, _)) if congruent(a, p) => {
-            "they fit if one pose of each sample is inverted: check that robot poses are base_from_flange (not flange_from_base) and observations camera_from_target (not target_from_camera); an eye-in-hand setup (camera on the hand) looks the same, and this tool is for a fixed camera".to_string()
-        }
-        _ if angle > MAX_ANGLE_MISMATCH_DEG.to_radians() => {
-            "check that each sample pairs the robot pose and the observation captured at the same moment, quaternions are x y z w, and rpy is fixed-axis X-Y-Z in radians".to_string()
-        }
-        _ => "check that translations are in metres, each sample pairs the robot pose and observation of the same moment, and the target is rigid on the flange".to_string(),
-    };
+    let hint = if angle > MAX_ANGLE_MISMATCH_DEG.to_radians() {
+        "check that each sample pairs the robot pose and the observation captured at the same moment, quaternions are x y z w, and rpy is fixed-axis X-Y-Z in radians"
+    } else {
+        "check that robot and camera translations are both in metres, each sample pairs the robot pose and observation of the same moment, and the target is rigid on the flange"
+    }
+    .to_string();
     Err(CalibError::FramesInconsistent {
         pairs: n,
         angle_deg: angle.to_degrees(),
@@ -226,7 +216,7 @@ pub(super) fn solve_3x3(
     let max = svd.singular_values.max();
     let min = svd.singular_values.min();
     let condition = if max > 0.0 { min / max } else { 0.0 };
-    if !(condition > 1e-10) {
+    if condition.is_nan() || condition <= 1e-10 {
         return Err(CalibError::Singular { what, condition });
     }
     svd.solve(rhs, 0.0)

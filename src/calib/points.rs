@@ -191,7 +191,7 @@ fn solve_checked(
     let max = svd.singular_values.max();
     let min = svd.singular_values.min();
     let condition = if max > 0.0 { min / max } else { 0.0 };
-    if !(condition > 1e-12) {
+    if condition.is_nan() || condition <= 1e-12 {
         return Err(CalibError::Singular { what, condition });
     }
     svd.solve(rhs, 0.0)

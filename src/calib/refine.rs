@@ -22,10 +22,11 @@ pub struct Weights {
 }
 
 impl Default for Weights {
-    /// 1 mm weighs as much as 0.2°: the typical noise of a board detector at 1 m.
+    /// 0.5 mm weighs as much as 0.2°: the noise of a board detector at about 1 m
+    /// (per axis), as in [`Noise::typical`](super::synthetic::Noise::typical).
     fn default() -> Self {
         Weights {
-            translation_m: 1e-3,
+            translation_m: 0.5e-3,
             rotation_rad: 0.2f64.to_radians(),
         }
     }

@@ -12,6 +12,11 @@ use serde::Serialize;
 /// Below this axis spread or largest rotation (deg) the result is computed but a
 /// warning suggests better poses.
 const WARN_BELOW_DEG: f64 = 30.0;
+/// Above either RMS residual the best solution is rejected as wrong (mm), with a
+/// diagnosis of inverted poses.
+pub const GROSS_RMS_MM: f64 = 20.0;
+/// See [`GROSS_RMS_MM`] (deg).
+pub const GROSS_RMS_DEG: f64 = 3.0;
 /// Above these RMS residuals a warning suggests checking the data.
 const WARN_RMS_MM: f64 = 5.0;
 /// See [`WARN_RMS_MM`] (deg).
@@ -106,8 +111,54 @@ impl Solution {
 }
 
 /// Checks the samples, runs the chosen solvers, refines the best (lowest weighted
-/// cost) closed form, and compares them all on every sample.
+/// cost) closed form, and compares them all on every sample. A best solution whose
+/// RMS residual exceeds [`GROSS_RMS_MM`] or [`GROSS_RMS_DEG`] is an error, which
+/// says whether the samples fit with the robot poses or the observations inverted.
 pub fn solve(samples: &[Sample], options: &SolveOptions) -> Result<Solution, CalibError> {
+    let solution = solve_unchecked(samples, options)?;
+    let best = solution.best();
+    let stats = best.evaluation.stats;
+    if stats.rms_mm <= GROSS_RMS_MM && stats.rms_deg.is_none_or(|d| d <= GROSS_RMS_DEG) {
+        return Ok(solution);
+    }
+    let fits = |variant: Vec<Sample>| {
+        solve_unchecked(&variant, options).ok().and_then(|s| {
+            let st = s.best().evaluation.stats;
+            (st.rms_mm <= WARN_RMS_MM && st.rms_deg.is_none_or(|d| d <= WARN_RMS_DEG))
+                .then_some(st.rms_mm)
+        })
+    };
+    let flange_inverted: Vec<Sample> = samples
+        .iter()
+        .map(|s| match *s {
+            Sample::Pose(p) => Sample::Pose(PoseSample {
+                base_from_flange: p.base_from_flange.inverse(),
+                ..p
+            }),
+            Sample::Point(p) => Sample::Point(PointSample {
+                base_from_flange: p.base_from_flange.inverse(),
+                ..p
+            }),
+        })
+        .collect();
+    // Inverting every robot pose fits equally when instead every observation is
+    // inverted (inverting both swaps X and Y), so the hint names both.
+    let has_poses = samples.iter().any(|s| matches!(s, Sample::Pose(_)));
+    let hint = match fits(flange_inverted) {
+        Some(mm) if has_poses => format!("the samples fit ({mm:.1} mm RMS) with one side of each sample inverted: the robot poses are probably flange_from_base (not base_from_flange), or the observations target_from_camera (not camera_from_target), or the camera is on the hand (eye-in-hand; this tool is for a fixed camera)"),
+        Some(mm) => format!("the samples fit ({mm:.1} mm RMS) with every robot pose inverted: the robot poses are probably flange_from_base (not base_from_flange), or the camera is on the hand (eye-in-hand; this tool is for a fixed camera)"),
+        None => "check that each robot pose and observation were captured at the same moment, units are metres, the target is rigid on the flange, and frames are as documented (base_from_flange, camera_from_target)".to_string(),
+    };
+    Err(CalibError::ResidualsTooLarge {
+        method: best.name.clone(),
+        rms_mm: stats.rms_mm,
+        rms_deg: stats.rms_deg,
+        hint,
+    })
+}
+
+/// [`solve`] without the final residual check.
+fn solve_unchecked(samples: &[Sample], options: &SolveOptions) -> Result<Solution, CalibError> {
     for (index, s) in samples.iter().enumerate() {
         s.check_finite(index)?;
     }

@@ -4,6 +4,7 @@
 //! `--json` and human-readable text otherwise; logs go to stderr.
 
 pub mod bench;
+mod calibrate;
 mod output;
 mod robot;
 
@@ -34,6 +35,9 @@ pub enum Command {
     Ik(robot::IkArgs),
     /// Print the effective cell configuration (defaults and file) as TOML.
     PrintConfig,
+    /// Hand–eye calibration of the fixed camera (base_from_camera).
+    #[command(subcommand)]
+    Calibrate(calibrate::CalibrateCommand),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -62,6 +66,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             print!("{}", toml::to_string_pretty(&config)?);
             Ok(ExitCode::SUCCESS)
         }
+        Command::Calibrate(which) => calibrate::run(which),
         Command::Bench(which) => bench::run(&cli.config, which),
     }
 }
