@@ -5,8 +5,8 @@ use clap::Parser;
 use graspcell::calib::synthetic::{point_samples, pose_samples, Noise, SyntheticScene};
 use graspcell::calib::{
     daniilidis, evaluate, fit_target, park_martin, point_solver, refine, solve, tsai_lenz,
-    CalibError, HandEye, HandEyeResult, Method, PoseSample, Sample, SampleFile, SolveOptions,
-    Weights,
+    CalibError, HandEye, HandEyeResult, Method, PointSample, PoseSample, Sample, SampleFile,
+    SolveOptions, Weights,
 };
 use graspcell::geometry::{pose_error, pose_from_params, Pose};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
@@ -141,6 +141,46 @@ fn point_methods_recover_a_known_transform_from_noisy_points() {
         REFINED_MEAN,
     );
     assert!(offset_mm < 2.0, "target offset off by {offset_mm} mm");
+}
+
+#[test]
+fn a_known_target_position_needs_no_rotation() {
+    // A sphere on a measured mount, moved by translation only: Kabsch applies, the
+    // unknown-offset solver cannot tell the offset from the camera position.
+    let scene = SyntheticScene::nominal();
+    let orientation = pose_from_params(&[0.0, 0.0, 0.0, 3.1, 0.2, 0.5]).rotation;
+    let y = scene.flange_from_target.translation.vector;
+    let samples: Vec<Sample> = [
+        [0.5, -0.2, 0.2],
+        [0.7, 0.1, 0.3],
+        [0.6, 0.2, 0.45],
+        [0.55, 0.0, 0.35],
+        [0.75, -0.15, 0.25],
+    ]
+    .iter()
+    .map(|p| {
+        let flange = Isometry3::from_parts(Vector3::from(*p).into(), orientation);
+        Sample::Point(PointSample {
+            base_from_flange: flange,
+            target_point_camera_m: scene.base_from_camera.inverse()
+                * (flange * nalgebra::Point3::from(y)),
+        })
+    })
+    .collect();
+    let known = SolveOptions {
+        method: Method::Points,
+        known_target_point: Some(y),
+        ..SolveOptions::default()
+    };
+    let s = solve(&samples, &known).unwrap();
+    let (mm, deg) = error_mm_deg(
+        &s.best().evaluation.hand_eye.base_from_camera,
+        &scene.base_from_camera,
+    );
+    assert!(mm < 1e-6 && deg < 1e-6, "{mm} mm {deg}°");
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    let err = solve(&samples, &SolveOptions::default()).unwrap_err();
+    assert!(matches!(err, CalibError::RotationsTooSmall { .. }), "{err}");
 }
 
 #[test]

@@ -66,7 +66,8 @@
 //! Before solving, [`check_motions`] rejects fewer than 3 samples, NaN, flange
 //! rotations that are too small ([`MIN_PAIR_ROTATION_DEG`]) and relative rotation
 //! axes that are (nearly) parallel ([`MIN_AXIS_SPREAD_DEG`]: the rotation of the
-//! camera about that axis cannot be observed). For pose samples [`check_frames`]
+//! camera about that axis cannot be observed); only the point solver with a known
+//! target position (Kabsch) needs no rotation. For pose samples [`check_frames`]
 //! uses the screw congruence of `A` and `B` (same angle, same translation along the
 //! axis) to catch mismatched samples, a wrong quaternion order and mixed units.
 //! Inverting every robot pose or every observation keeps each pair congruent (the
@@ -122,7 +123,8 @@ mod tsai_park;
 
 pub use daniilidis::daniilidis;
 pub use motions::{
-    check_frames, check_motions, Conditioning, MIN_AXIS_SPREAD_DEG, MIN_PAIR_ROTATION_DEG,
+    check_frames, check_motions, measure_motions, Conditioning, MIN_AXIS_SPREAD_DEG,
+    MIN_PAIR_ROTATION_DEG,
 };
 pub use points::{kabsch, point_solver, umeyama, MIN_POINT_SPREAD_M};
 pub use refine::{refine, Refined, Weights};

@@ -78,6 +78,26 @@ pub(super) fn motion_pairs(samples: &[PoseSample]) -> Vec<MotionPair> {
 /// rotations of at least [`MIN_PAIR_ROTATION_DEG`] between some samples, and
 /// rotation axes spread by at least [`MIN_AXIS_SPREAD_DEG`].
 pub fn check_motions(base_from_flange: &[Pose]) -> Result<Conditioning, CalibError> {
+    let c = measure_motions(base_from_flange)?;
+    if c.usable_pairs == 0 {
+        return Err(CalibError::RotationsTooSmall {
+            max_deg: c.max_pair_rotation_deg,
+            need_deg: MIN_PAIR_ROTATION_DEG,
+        });
+    }
+    if c.axis_spread_deg < MIN_AXIS_SPREAD_DEG {
+        return Err(CalibError::ParallelAxes {
+            spread_deg: c.axis_spread_deg,
+            need_deg: MIN_AXIS_SPREAD_DEG,
+            axis: c.common_axis,
+        });
+    }
+    Ok(c)
+}
+
+/// The conditioning of the flange poses without the rotation checks (at least 3
+/// samples are still required); spread 0 when no pair turns enough.
+pub fn measure_motions(base_from_flange: &[Pose]) -> Result<Conditioning, CalibError> {
     let n = base_from_flange.len();
     if n < super::samples::MIN_SAMPLES {
         return Err(CalibError::TooFewSamples {
@@ -100,34 +120,24 @@ pub fn check_motions(base_from_flange: &[Pose]) -> Result<Conditioning, CalibErr
             }
         }
     }
-    if usable == 0 {
-        return Err(CalibError::RotationsTooSmall {
-            max_deg: max_angle.to_degrees(),
-            need_deg: MIN_PAIR_ROTATION_DEG,
-        });
-    }
-    let eig = SymmetricEigen::new(scatter / usable as f64);
-    let mut order: Vec<usize> = (0..3).collect();
-    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
-    let (l1, l2) = (
-        eig.eigenvalues[order[0]],
-        eig.eigenvalues[order[1]].max(0.0),
-    );
-    let spread_deg = (2.0 * (l2 / l1).sqrt().atan()).to_degrees();
-    let axis = eig.eigenvectors.column(order[0]);
-    let conditioning = Conditioning {
+    let mut conditioning = Conditioning {
         samples: n,
         usable_pairs: usable,
         max_pair_rotation_deg: max_angle.to_degrees(),
-        axis_spread_deg: spread_deg,
-        common_axis: [axis[0], axis[1], axis[2]],
+        axis_spread_deg: 0.0,
+        common_axis: [0.0, 0.0, 0.0],
     };
-    if spread_deg < MIN_AXIS_SPREAD_DEG {
-        return Err(CalibError::ParallelAxes {
-            spread_deg,
-            need_deg: MIN_AXIS_SPREAD_DEG,
-            axis: conditioning.common_axis,
-        });
+    if usable > 0 {
+        let eig = SymmetricEigen::new(scatter / usable as f64);
+        let mut order: Vec<usize> = (0..3).collect();
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+        let (l1, l2) = (
+            eig.eigenvalues[order[0]],
+            eig.eigenvalues[order[1]].max(0.0),
+        );
+        conditioning.axis_spread_deg = (2.0 * (l2 / l1).sqrt().atan()).to_degrees();
+        let axis = eig.eigenvectors.column(order[0]);
+        conditioning.common_axis = [axis[0], axis[1], axis[2]];
     }
     Ok(conditioning)
 }

@@ -1,9 +1,9 @@
 //! Running the solvers on a sample set, refining, and comparing the methods.
 
 use super::{
-    check_frames, check_motions, daniilidis, evaluate, fit_target, park_martin, point_solver,
-    refine, tsai_lenz, CalibError, Conditioning, Evaluation, HandEye, PointSample, PoseSample,
-    Sample, Weights,
+    check_frames, check_motions, daniilidis, evaluate, fit_target, measure_motions, park_martin,
+    point_solver, refine, tsai_lenz, CalibError, Conditioning, Evaluation, HandEye, PointSample,
+    PoseSample, Sample, Weights,
 };
 use crate::geometry::{pose_error, Pose};
 use nalgebra::Vector3;
@@ -163,7 +163,13 @@ fn solve_unchecked(samples: &[Sample], options: &SolveOptions) -> Result<Solutio
         s.check_finite(index)?;
     }
     let flanges: Vec<Pose> = samples.iter().map(|s| *s.base_from_flange()).collect();
-    let conditioning = check_motions(&flanges)?;
+    // Kabsch with a known target position needs non-collinear points, not rotations.
+    let kabsch_only = options.method == Method::Points && options.known_target_point.is_some();
+    let conditioning = if kabsch_only {
+        measure_motions(&flanges)?
+    } else {
+        check_motions(&flanges)?
+    };
     let poses: Vec<PoseSample> = samples
         .iter()
         .filter_map(|s| match s {
@@ -276,13 +282,13 @@ fn solve_unchecked(samples: &[Sample], options: &SolveOptions) -> Result<Solutio
             ));
         }
     }
-    if conditioning.axis_spread_deg < WARN_BELOW_DEG {
+    if conditioning.axis_spread_deg < WARN_BELOW_DEG && !kabsch_only {
         warnings.push(format!(
             "rotation axes spread only {:.1}°: add poses rotating about other axes",
             conditioning.axis_spread_deg
         ));
     }
-    if conditioning.max_pair_rotation_deg < WARN_BELOW_DEG {
+    if conditioning.max_pair_rotation_deg < WARN_BELOW_DEG && !kabsch_only {
         warnings.push(format!(
             "the flange turns at most {:.1}° between samples: larger rotations (30°+) calibrate better",
             conditioning.max_pair_rotation_deg

@@ -49,7 +49,7 @@ impl SyntheticScene {
         }
     }
 
-    /// `n` target poses in the base frame, facing the camera within [`MAX_TILT_DEG`].
+    /// `n` target poses in the base frame, facing the camera within 40°.
     pub fn base_from_targets(&self, n: usize, rng: &mut ChaCha8Rng) -> Vec<Pose> {
         let eye = self.base_from_camera.translation.vector;
         (0..n)
