@@ -63,8 +63,8 @@
 //!
 //! # Bad input
 //!
-//! Before solving, [`check_motions`] rejects fewer than 3 samples, NaN, flange
-//! rotations that are too small ([`MIN_PAIR_ROTATION_DEG`]) and relative rotation
+//! Before solving, [`solve`] rejects NaN or infinite numbers (naming the sample) and
+//! [`check_motions`] rejects fewer than 3 samples, flange rotations that are too small ([`MIN_PAIR_ROTATION_DEG`]) and relative rotation
 //! axes that are (nearly) parallel ([`MIN_AXIS_SPREAD_DEG`]: the rotation of the
 //! camera about that axis cannot be observed); only the point solver with a known
 //! target position (Kabsch) needs no rotation. For pose samples [`check_frames`]
