@@ -7,6 +7,7 @@
 //! them, subject to reachability and the table. See `ARCHITECTURE` in the shared docs
 //! for the processes and data flow; each module below owns one concept.
 
+pub mod calib;
 pub mod cli;
 pub mod cloud;
 pub mod config;

@@ -2,3 +2,4 @@
 
 mod shipped_files;
 mod trial;
+mod calib;

@@ -13,6 +13,8 @@ use std::process::ExitCode;
 pub enum BenchCommand {
     /// Inverse kinematics: median solve time and success rate over seeded random poses.
     Ik(IkBenchArgs),
+    /// Hand–eye calibration: median solve time of each method on synthetic samples.
+    Calib(CalibBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -29,10 +31,28 @@ pub struct IkBenchArgs {
     pub json: bool,
 }
 
+/// Options of `cell bench calib`.
+#[derive(Debug, Args)]
+pub struct CalibBenchArgs {
+    /// Number of synthetic samples per solve.
+    #[arg(long, default_value_t = 30)]
+    pub samples: usize,
+    /// Solves per method (the median is reported).
+    #[arg(long, default_value_t = 100)]
+    pub repeats: usize,
+    /// Seed of the synthetic samples.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print JSON (always JSON; accepted for uniformity).
+    #[arg(long)]
+    pub json: bool,
+}
+
 /// Runs one benchmark.
 pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
     match which {
         BenchCommand::Ik(args) => super::robot::bench_ik(config, args),
+        BenchCommand::Calib(args) => super::calibrate::bench_calib(args),
     }
 }
 

@@ -4,6 +4,7 @@
 //! `--json` and human-readable text otherwise; logs go to stderr.
 
 pub mod bench;
+mod calibrate;
 mod output;
 mod robot;
 mod trial;
@@ -42,6 +43,9 @@ pub enum Command {
     /// The trial log's grades kept on paper: CSV import and export.
     #[command(subcommand)]
     Log(trial::LogCommand),
+    /// Hand–eye calibration of the fixed camera (base_from_camera).
+    #[command(subcommand)]
+    Calibrate(calibrate::CalibrateCommand),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -73,6 +77,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Grade(args) => trial::grade(args),
         Command::Report(args) => trial::report(args),
         Command::Log(which) => trial::log(which),
+        Command::Calibrate(which) => calibrate::run(which),
         Command::Bench(which) => bench::run(&cli.config, which),
     }
 }

@@ -1,0 +1,467 @@
+//! `cell calibrate ...` (hand–eye calibration) and `cell bench calib`.
+
+use super::bench::{median, CalibBenchArgs};
+use crate::calib::synthetic::{point_samples, pose_samples, Noise, SyntheticScene};
+use crate::calib::{
+    daniilidis, fit_target, kabsch, park_martin, point_solver, refine, solve, tsai_lenz,
+    Conditioning, HandEye, HandEyeResult, Method, ResidualStats, Sample, SampleFile,
+    SampleResidual, Solution, SolveOptions, Weights,
+};
+use crate::geometry::{matrix_rows, parse_numbers, PoseJson};
+use anyhow::Context;
+use clap::{Args, Subcommand};
+use nalgebra::{Point3, Vector3};
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Instant, SystemTime, UNIX_EPOCH};
+
+/// The calibration subcommands.
+#[derive(Debug, Subcommand)]
+pub enum CalibrateCommand {
+    /// Solve base_from_camera from a sample file; print residuals and the method
+    /// comparison; write calib/hand_eye.toml.
+    Solve(SolveArgs),
+}
+
+/// Options of `cell calibrate solve`.
+#[derive(Debug, Args)]
+pub struct SolveArgs {
+    /// Sample file (JSON: base_from_flange with camera_from_target or
+    /// target_point_camera_m per sample; see the README).
+    #[arg(long)]
+    pub samples: PathBuf,
+    /// Closed-form solver; `all` runs every one the samples allow. The best is then
+    /// refined by nonlinear least squares over all samples.
+    #[arg(long, value_enum, default_value_t = Method::All)]
+    pub method: Method,
+    /// The target's position in the flange frame x,y,z (m), if measured; estimated otherwise.
+    #[arg(long, allow_hyphen_values = true)]
+    pub target_in_flange: Option<String>,
+    /// Skip the nonlinear refinement (report the best closed form).
+    #[arg(long)]
+    pub no_refine: bool,
+    /// Result file to write (atomically).
+    #[arg(long, default_value = "calib/hand_eye.toml")]
+    pub out: PathBuf,
+    /// Print the result without writing the result file.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs one calibration subcommand.
+pub fn run(which: CalibrateCommand) -> anyhow::Result<ExitCode> {
+    match which {
+        CalibrateCommand::Solve(args) => solve_command(args),
+    }
+}
+
+/// One method's line in the comparison.
+#[derive(Debug, Serialize)]
+struct ComparisonRow {
+    method: String,
+    base_from_camera: PoseJson,
+    residuals: ResidualStats,
+    weighted_cost: f64,
+    from_selected_mm: f64,
+    from_selected_deg: f64,
+}
+
+/// What `cell calibrate solve` prints.
+#[derive(Debug, Serialize)]
+struct SolveReport {
+    samples_file: String,
+    sample_count: usize,
+    pose_samples: usize,
+    point_samples: usize,
+    method: String,
+    base_from_camera: PoseJson,
+    base_from_camera_matrix: [[f64; 4]; 4],
+    target_in_flange_m: [f64; 3],
+    #[serde(skip_serializing_if = "Option::is_none")]
+    flange_from_target: Option<PoseJson>,
+    residual_stats: ResidualStats,
+    residuals: Vec<SampleResidual>,
+    comparison: Vec<ComparisonRow>,
+    weights: Weights,
+    conditioning: Conditioning,
+    warnings: Vec<String>,
+    written: Option<String>,
+}
+
+fn solve_command(args: SolveArgs) -> anyhow::Result<ExitCode> {
+    let file = SampleFile::load(&args.samples)?;
+    let known_target_point = match &args.target_in_flange {
+        Some(text) => {
+            let v = parse_numbers(text, 3, "--target-in-flange x,y,z")?;
+            Some(Vector3::new(v[0], v[1], v[2]))
+        }
+        None => None,
+    };
+    let options = SolveOptions {
+        method: args.method,
+        refine: !args.no_refine,
+        known_target_point,
+        weights: Weights::default(),
+    };
+    let solution = solve(&file.samples, &options)
+        .with_context(|| format!("cannot calibrate from {}", args.samples.display()))?;
+    for w in &solution.warnings {
+        tracing::warn!("{w}");
+    }
+    let samples_file = args.samples.display().to_string();
+    let result = HandEyeResult::from_solution(
+        &solution,
+        &samples_file,
+        file.samples.len(),
+        &utc_now_rfc3339(),
+    );
+    let written = if args.dry_run {
+        None
+    } else {
+        result.save(&args.out)?;
+        Some(args.out.display().to_string())
+    };
+    let report = report(
+        &file,
+        &solution,
+        &result,
+        samples_file,
+        written,
+        options.weights,
+    );
+    super::emit(args.json, &report, human_report)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn report(
+    file: &SampleFile,
+    solution: &Solution,
+    result: &HandEyeResult,
+    samples_file: String,
+    written: Option<String>,
+    weights: Weights,
+) -> SolveReport {
+    let best = solution.best();
+    let pose_samples = file
+        .samples
+        .iter()
+        .filter(|s| matches!(s, Sample::Pose(_)))
+        .count();
+    SolveReport {
+        samples_file,
+        sample_count: file.samples.len(),
+        pose_samples,
+        point_samples: file.samples.len() - pose_samples,
+        method: best.name.clone(),
+        base_from_camera: result.base_from_camera,
+        base_from_camera_matrix: matrix_rows(&best.evaluation.hand_eye.base_from_camera),
+        target_in_flange_m: result.target_in_flange_m,
+        flange_from_target: result.flange_from_target,
+        residual_stats: best.evaluation.stats,
+        residuals: best.evaluation.residuals.clone(),
+        comparison: solution
+            .results
+            .iter()
+            .map(|r| ComparisonRow {
+                method: r.name.clone(),
+                base_from_camera: PoseJson::from(&r.evaluation.hand_eye.base_from_camera),
+                residuals: r.evaluation.stats,
+                weighted_cost: r.evaluation.cost,
+                from_selected_mm: r.from_selected.0,
+                from_selected_deg: r.from_selected.1,
+            })
+            .collect(),
+        weights,
+        conditioning: solution.conditioning,
+        warnings: solution.warnings.clone(),
+        written,
+    }
+}
+
+fn fmt3(v: &[f64]) -> String {
+    let parts: Vec<String> = v.iter().map(|x| format!("{x:.5}")).collect();
+    format!("[{}]", parts.join(", "))
+}
+
+fn opt(v: Option<f64>, precision: usize) -> String {
+    v.map(|v| format!("{v:.precision$}"))
+        .unwrap_or_else(|| "-".into())
+}
+
+fn human_report(r: &SolveReport) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "hand-eye calibration from {} ({} samples: {} pose, {} point)",
+        r.samples_file, r.sample_count, r.pose_samples, r.point_samples
+    );
+    let _ = writeln!(s, "method: {}", r.method);
+    let p = &r.base_from_camera;
+    let _ = writeln!(
+        s,
+        "base_from_camera: xyz {} m, rpy {} rad, quat_xyzw {}",
+        fmt3(&p.xyz),
+        fmt3(&p.rpy.unwrap_or_default()),
+        fmt3(&p.quat_xyzw.unwrap_or_default())
+    );
+    for row in &r.base_from_camera_matrix {
+        let _ = writeln!(
+            s,
+            "  [{:>9.5} {:>9.5} {:>9.5} {:>9.5}]",
+            row[0], row[1], row[2], row[3]
+        );
+    }
+    let _ = writeln!(s, "target in flange: {} m", fmt3(&r.target_in_flange_m));
+    let _ = writeln!(
+        s,
+        "residuals per sample:\n  sample  translation_mm  rotation_deg"
+    );
+    for e in &r.residuals {
+        let _ = writeln!(
+            s,
+            "  {:>6}  {:>14.3}  {:>12}",
+            e.index,
+            e.translation_mm,
+            opt(e.rotation_deg, 3)
+        );
+    }
+    let st = &r.residual_stats;
+    let _ = writeln!(
+        s,
+        "  rms {:.3} mm, median {:.3} mm, max {:.3} mm; rms {} deg, max {} deg",
+        st.rms_mm,
+        st.median_mm,
+        st.max_mm,
+        opt(st.rms_deg, 3),
+        opt(st.max_deg, 3)
+    );
+    let _ = writeln!(
+        s,
+        "method comparison (residuals over all samples; distance of base_from_camera from the selected result):\n  {:<20} {:>8} {:>8} {:>8} {:>8} {:>10} {:>10}",
+        "method", "rms_mm", "max_mm", "rms_deg", "max_deg", "d_sel_mm", "d_sel_deg"
+    );
+    for c in &r.comparison {
+        let _ = writeln!(
+            s,
+            "  {:<20} {:>8.3} {:>8.3} {:>8} {:>8} {:>10.3} {:>10.4}",
+            c.method,
+            c.residuals.rms_mm,
+            c.residuals.max_mm,
+            opt(c.residuals.rms_deg, 3),
+            opt(c.residuals.max_deg, 3),
+            c.from_selected_mm,
+            c.from_selected_deg
+        );
+    }
+    let c = &r.conditioning;
+    let _ = writeln!(
+        s,
+        "conditioning: {} sample pairs rotating >= {}°, largest rotation {:.1}°, rotation axis spread {:.1}°",
+        c.usable_pairs,
+        crate::calib::MIN_PAIR_ROTATION_DEG,
+        c.max_pair_rotation_deg,
+        c.axis_spread_deg
+    );
+    for w in &r.warnings {
+        let _ = writeln!(s, "warning: {w}");
+    }
+    match &r.written {
+        Some(path) => {
+            let _ = writeln!(s, "wrote {path}");
+        }
+        None => {
+            let _ = writeln!(s, "dry run: nothing written");
+        }
+    }
+    s
+}
+
+/// The current UTC time as RFC 3339 (`2025-01-31T10:00:00Z`).
+fn utc_now_rfc3339() -> String {
+    let secs = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    rfc3339_utc(secs)
+}
+
+/// Seconds since the Unix epoch as RFC 3339 UTC (proleptic Gregorian calendar).
+fn rfc3339_utc(unix_s: u64) -> String {
+    let days = (unix_s / 86_400) as i64;
+    let rem = unix_s % 86_400;
+    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1_460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+/// One benchmarked solver.
+#[derive(Debug, Serialize)]
+struct BenchRow {
+    method: &'static str,
+    median_us: f64,
+    ratio_to_tsai: f64,
+}
+
+/// What `cell bench calib` prints.
+#[derive(Debug, Serialize)]
+struct BenchReport {
+    benchmark: &'static str,
+    workload: String,
+    samples: usize,
+    repeats: usize,
+    seed: u64,
+    baseline: &'static str,
+    results: Vec<BenchRow>,
+}
+
+/// Runs `cell bench calib`: median solve time of each method on synthetic samples.
+pub fn bench_calib(args: CalibBenchArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(
+        args.samples >= 5,
+        "--samples {}: need at least 5",
+        args.samples
+    );
+    anyhow::ensure!(args.repeats >= 1, "--repeats must be at least 1");
+    let scene = SyntheticScene::nominal();
+    let noise = Noise::typical();
+    let poses = pose_samples(&scene, args.samples, &noise, args.seed);
+    let points = point_samples(&scene, args.samples, &noise, args.seed);
+    let pose_set: Vec<Sample> = poses.iter().copied().map(Sample::Pose).collect();
+    let point_set: Vec<Sample> = points.iter().copied().map(Sample::Point).collect();
+    let weights = Weights::default();
+    let y = scene.flange_from_target.translation.vector;
+    let tsai_start = {
+        let x = tsai_lenz(&poses)?;
+        HandEye {
+            base_from_camera: x,
+            flange_from_target: fit_target(&pose_set, &x, None),
+        }
+    };
+    let camera: Vec<Point3<f64>> = points.iter().map(|s| s.target_point_camera_m).collect();
+    let base: Vec<Point3<f64>> = points
+        .iter()
+        .map(|s| s.base_from_flange * Point3::from(y))
+        .collect();
+    type Job<'a> = Box<dyn Fn() -> anyhow::Result<()> + 'a>;
+    let jobs: Vec<(&'static str, Job)> = vec![
+        (
+            "tsai",
+            Box::new(|| tsai_lenz(&poses).map(drop).map_err(Into::into)),
+        ),
+        (
+            "park",
+            Box::new(|| park_martin(&poses).map(drop).map_err(Into::into)),
+        ),
+        (
+            "daniilidis",
+            Box::new(|| daniilidis(&poses).map(drop).map_err(Into::into)),
+        ),
+        (
+            "refine (from tsai, pose samples)",
+            Box::new(|| {
+                refine(&pose_set, &tsai_start, None, &weights);
+                Ok(())
+            }),
+        ),
+        (
+            "points (unknown target position, point samples)",
+            Box::new(|| {
+                point_solver(&points, None, &weights)
+                    .map(drop)
+                    .map_err(Into::into)
+            }),
+        ),
+        (
+            "kabsch (known target position)",
+            Box::new(|| kabsch(&camera, &base).map(drop).map_err(Into::into)),
+        ),
+        (
+            "solve all + refine, pose samples (cell calibrate solve)",
+            Box::new(|| {
+                solve(&pose_set, &SolveOptions::default())
+                    .map(drop)
+                    .map_err(Into::into)
+            }),
+        ),
+        (
+            "solve all + refine, point samples (cell calibrate solve)",
+            Box::new(|| {
+                solve(&point_set, &SolveOptions::default())
+                    .map(drop)
+                    .map_err(Into::into)
+            }),
+        ),
+    ];
+    let bar = indicatif::ProgressBar::new((jobs.len() * args.repeats) as u64);
+    let mut medians = Vec::new();
+    for (name, job) in &jobs {
+        job().with_context(|| format!("bench calib: {name} failed"))?;
+        let mut times_us = Vec::with_capacity(args.repeats);
+        for _ in 0..args.repeats {
+            let start = Instant::now();
+            job()?;
+            times_us.push(start.elapsed().as_secs_f64() * 1e6);
+            bar.inc(1);
+        }
+        medians.push((*name, median(&mut times_us)));
+    }
+    bar.finish_and_clear();
+    let tsai_us = medians[0].1;
+    let report = BenchReport {
+        benchmark: "calib",
+        workload: format!(
+            "{} synthetic samples (seed {}, noise {} mm / {}° per axis), each method solved {} times; median wall time",
+            args.samples,
+            args.seed,
+            noise.translation_m * 1e3,
+            noise.rotation_rad.to_degrees(),
+            args.repeats
+        ),
+        samples: args.samples,
+        repeats: args.repeats,
+        seed: args.seed,
+        baseline: "tsai",
+        results: medians
+            .into_iter()
+            .map(|(method, median_us)| BenchRow {
+                method,
+                median_us: (median_us * 100.0).round() / 100.0,
+                ratio_to_tsai: (median_us / tsai_us * 1000.0).round() / 1000.0,
+            })
+            .collect(),
+    };
+    super::emit(true, &report, |_| String::new())?;
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rfc3339_matches_known_dates() {
+        assert_eq!(rfc3339_utc(0), "1970-01-01T00:00:00Z");
+        // 2000-02-29 (leap day) 12:34:56 UTC.
+        assert_eq!(rfc3339_utc(951_827_696), "2000-02-29T12:34:56Z");
+        // 2024-12-31T23:59:59Z.
+        assert_eq!(rfc3339_utc(1_735_689_599), "2024-12-31T23:59:59Z");
+    }
+}
