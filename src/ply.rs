@@ -3,10 +3,10 @@
 //!
 //! A file is a header (`ply`, `format`, `comment`, `obj_info`, `element` and
 //! `property` lines, up to `end_header`) and a body holding each element's rows in
-//! header order. [`parse`] gives every property of every element as a typed
-//! [`Column`]; [`encode`] writes the same structure back. Errors name the source and
-//! the place: a header or body line for ASCII, an element row and byte offset for
-//! binary.
+//! header order, one row per line in ASCII (as every common writer does).
+//! [`parse`] gives every property of every element as a typed [`Column`];
+//! [`encode`] writes the same structure back. Errors name the source and the place:
+//! a header or body line for ASCII, an element row and byte offset for binary.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -216,6 +216,7 @@ impl Values {
     }
 
     /// Value `i` as `f64` (exact for every PLY type).
+    #[allow(clippy::unnecessary_cast)] // one arm of the macro is f64 already
     pub fn get_f64(&self, i: usize) -> f64 {
         each_values!(self, v => v[i] as f64)
     }
@@ -235,6 +236,7 @@ impl Values {
 
     /// All values as `f32`: bit-exact for `float` columns (NaN payloads included),
     /// rounded for `double`.
+    #[allow(clippy::unnecessary_cast)] // the macro's `Float` arm is taken above
     pub fn to_f32_vec(&self) -> Vec<f32> {
         match self {
             Values::Float(v) => v.clone(),
@@ -243,6 +245,7 @@ impl Values {
     }
 
     /// All values as `f64` (exact).
+    #[allow(clippy::unnecessary_cast)] // one arm of the macro is f64 already
     pub fn to_f64_vec(&self) -> Vec<f64> {
         each_values!(self, v => v.iter().map(|&x| x as f64).collect())
     }

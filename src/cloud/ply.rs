@@ -87,7 +87,7 @@ fn organisation(ply: &Ply, count: usize) -> Result<(u32, u32), String> {
     let (width, height) = match (width, height) {
         (None, None) => (count_u32, 1),
         (Some(w), None) => (w, 1),
-        (None, Some(h)) => (if h == 0 { 0 } else { count_u32 / h }, h),
+        (None, Some(h)) => (count_u32.checked_div(h).unwrap_or(0), h),
         (Some(w), Some(h)) => (w, h),
     };
     if width as u64 * height as u64 != count as u64 {

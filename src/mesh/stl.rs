@@ -88,20 +88,21 @@ pub fn encode_stl(mesh: &TriMesh) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
-/// True when `bytes` are a binary STL: the size matches the header's triangle count
-/// (unless the file is plainly ASCII text), or it does not start with `solid`.
+/// True when `bytes` are a binary STL. ASCII STL is text that starts with `solid`;
+/// binary files may start with `solid` too, but hold NUL bytes (zero floats and
+/// attribute words). A size of exactly `84 + 50 n` means binary unless the file is
+/// such text with facets.
 fn is_binary(bytes: &[u8]) -> bool {
-    let starts_solid = bytes.trim_ascii_start().starts_with(b"solid");
+    let textual = bytes.trim_ascii_start().starts_with(b"solid")
+        && !bytes.contains(&0)
+        && std::str::from_utf8(bytes).is_ok();
     if bytes.len() >= HEADER_BYTES {
         let n = u32::from_le_bytes(bytes[80..84].try_into().expect("4 bytes")) as u64;
         if HEADER_BYTES as u64 + RECORD_BYTES as u64 * n == bytes.len() as u64 {
-            let plainly_text = starts_solid
-                && bytes.iter().all(|b| b.is_ascii())
-                && bytes.windows(5).any(|w| w == b"facet");
-            return !plainly_text;
+            return !(textual && bytes.windows(5).any(|w| w == b"facet"));
         }
     }
-    !starts_solid
+    !textual
 }
 
 /// Collects vertices, giving each distinct position one index.
@@ -384,6 +385,14 @@ mod tests {
         let mut bytes = encode_stl(&cube()).unwrap();
         bytes[..11].copy_from_slice(b"solid cube ");
         assert_same_triangles(&parse_stl(&bytes, Path::new("b.stl")).unwrap(), &cube());
+        // Truncated, it is still recognised as binary and reported as truncated.
+        let err = parse_stl(&bytes[..bytes.len() - 50], Path::new("b.stl"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("facet 11, byte offset 634: file ends (truncated)"),
+            "{err}"
+        );
     }
 
     #[test]
