@@ -295,42 +295,31 @@ impl Values {
     /// Appends value `i` to an ASCII row; floats round-trip exactly (NaN as `nan`).
     fn encode_text(&self, i: usize, out: &mut String) {
         match self {
-            Values::Float(v) => push_f32_text(out, v[i]),
-            Values::Double(v) => push_f64_text(out, v[i]),
+            Values::Float(v) => push_float_text(out, v[i]),
+            Values::Double(v) => push_float_text(out, v[i]),
             other => each_values!(other, v => { let _ = write!(out, "{}", v[i]); }),
         }
     }
 }
 
-/// Appends `x` as text that parses back to the same bits (except NaN payloads):
-/// the shortest round-trip decimal, or `nan`, `inf`, `-inf` as C's printf writes
-/// them (which PCL, Open3D and `strtod` read).
-pub(crate) fn push_f32_text(out: &mut String, x: f32) {
-    if x.is_finite() {
+/// Appends a float as text that parses back to the same bits (except NaN
+/// payloads): the shortest round-trip decimal, in exponent form for magnitudes
+/// outside 1e-5..1e16, or `nan`, `inf`, `-inf` as C's printf writes them (which
+/// PCL, Open3D and `strtod` read).
+pub(crate) fn push_float_text<T>(out: &mut String, x: T)
+where
+    T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
+{
+    let v: f64 = x.into();
+    if v.is_nan() {
+        out.push_str("nan");
+    } else if v.is_infinite() {
+        out.push_str(if v > 0.0 { "inf" } else { "-inf" });
+    } else if v == 0.0 || (1e-5..1e16).contains(&v.abs()) {
         let _ = write!(out, "{x}");
     } else {
-        push_non_finite(out, x as f64);
+        let _ = write!(out, "{x:e}");
     }
-}
-
-/// Appends `x` as text that parses back to the same bits; see [`push_f32_text`].
-pub(crate) fn push_f64_text(out: &mut String, x: f64) {
-    if x.is_finite() {
-        let _ = write!(out, "{x}");
-    } else {
-        push_non_finite(out, x);
-    }
-}
-
-/// Appends `nan`, `inf` or `-inf`.
-fn push_non_finite(out: &mut String, x: f64) {
-    out.push_str(if x.is_nan() {
-        "nan"
-    } else if x > 0.0 {
-        "inf"
-    } else {
-        "-inf"
-    });
 }
 
 /// The data of one property of an element: a value per row, or a list per row.
@@ -1048,6 +1037,41 @@ mod tests {
                 panic!("h is not double");
             };
             assert_eq!(h[1].to_bits(), (-0.0f64).to_bits(), "{format:?}");
+        }
+    }
+
+    #[test]
+    fn float_text_is_short_and_conventional() {
+        let text = |x: f32| {
+            let mut s = String::new();
+            push_float_text(&mut s, x);
+            s
+        };
+        assert_eq!(text(0.1), "0.1");
+        assert_eq!(text(-0.0), "-0");
+        assert_eq!(text(1e-8), "1e-8");
+        assert_eq!(text(f32::MAX), "3.4028235e38");
+        assert_eq!(text(f32::NAN), "nan");
+        assert_eq!(text(f32::NEG_INFINITY), "-inf");
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn float_text_round_trips_every_f32(bits in proptest::num::u32::ANY) {
+            let x = f32::from_bits(bits);
+            let mut s = String::new();
+            push_float_text(&mut s, x);
+            let back: f32 = s.parse().unwrap();
+            proptest::prop_assert!(back.to_bits() == bits || (x.is_nan() && back.is_nan()), "{s}");
+        }
+
+        #[test]
+        fn float_text_round_trips_every_f64(bits in proptest::num::u64::ANY) {
+            let x = f64::from_bits(bits);
+            let mut s = String::new();
+            push_float_text(&mut s, x);
+            let back: f64 = s.parse().unwrap();
+            proptest::prop_assert!(back.to_bits() == bits || (x.is_nan() && back.is_nan()), "{s}");
         }
     }
 

@@ -9,7 +9,7 @@
 
 use super::io::{check_shape, CloudEncoding, CloudError};
 use super::PointCloud;
-use crate::ply::push_f32_text;
+use crate::ply::push_float_text;
 use nalgebra::{Point3, Vector3};
 use std::fmt::Write as _;
 use std::path::Path;
@@ -508,7 +508,7 @@ pub fn encode_pcd(cloud: &PointCloud, encoding: CloudEncoding) -> Result<Vec<u8>
                     if k > 0 {
                         text.push(' ');
                     }
-                    push_f32_text(&mut text, v);
+                    push_float_text(&mut text, v);
                 }
                 let _ = writeln!(text);
             }
