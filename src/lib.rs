@@ -13,5 +13,6 @@ pub mod cloud;
 pub mod config;
 pub mod geometry;
 pub mod mesh;
+pub mod ply;
 pub mod robot;
 pub mod trial;

@@ -1,5 +1,10 @@
 //! Point clouds: the camera's snapshot and the models' sampled surfaces.
 
+pub mod io;
+pub mod pcd;
+pub mod ply;
+pub mod sample;
+
 use nalgebra::{Point3, Vector3};
 
 /// A point cloud in one frame (metres), organised (an image's grid, row-major,

@@ -1,5 +1,8 @@
 //! Triangle meshes: the object models of each category.
 
+pub mod ply;
+pub mod stl;
+
 use crate::geometry::Pose;
 use nalgebra::Point3;
 use std::path::{Path, PathBuf};
