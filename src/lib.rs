@@ -13,3 +13,4 @@ pub mod config;
 pub mod geometry;
 pub mod mesh;
 pub mod robot;
+pub mod sim;

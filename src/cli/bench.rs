@@ -13,6 +13,8 @@ use std::process::ExitCode;
 pub enum BenchCommand {
     /// Inverse kinematics: median solve time and success rate over seeded random poses.
     Ik(IkBenchArgs),
+    /// Depth camera: median time to render a 640x480 frame of the table and a mug.
+    Render(RenderBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -29,10 +31,25 @@ pub struct IkBenchArgs {
     pub json: bool,
 }
 
+/// Options of `cell bench render`.
+#[derive(Debug, Args)]
+pub struct RenderBenchArgs {
+    /// Number of timed renders.
+    #[arg(long, default_value_t = 20)]
+    pub repeats: usize,
+    /// Seed of the mug model and the first frame's noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print JSON (always JSON; accepted for uniformity).
+    #[arg(long)]
+    pub json: bool,
+}
+
 /// Runs one benchmark.
 pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
     match which {
         BenchCommand::Ik(args) => super::robot::bench_ik(config, args),
+        BenchCommand::Render(args) => super::camera::bench_render(config, args),
     }
 }
 

@@ -4,6 +4,8 @@
 //! `--json` and human-readable text otherwise; logs go to stderr.
 
 pub mod bench;
+mod camera;
+mod objects;
 mod output;
 mod robot;
 
@@ -34,6 +36,12 @@ pub enum Command {
     Ik(robot::IkArgs),
     /// Print the effective cell configuration (defaults and file) as TOML.
     PrintConfig,
+    /// Procedural object models: write category instances as mesh files.
+    #[command(subcommand)]
+    Objects(objects::ObjectsCommand),
+    /// The simulated depth camera: render scenes to point clouds.
+    #[command(subcommand)]
+    Camera(camera::CameraCommand),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -62,6 +70,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             print!("{}", toml::to_string_pretty(&config)?);
             Ok(ExitCode::SUCCESS)
         }
+        Command::Objects(which) => objects::run(which),
+        Command::Camera(which) => camera::run(&cli.config, which),
         Command::Bench(which) => bench::run(&cli.config, which),
     }
 }
