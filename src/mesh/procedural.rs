@@ -929,6 +929,31 @@ mod tests {
     }
 
     #[test]
+    fn a_folding_handle_is_rejected_by_the_curvature_check() {
+        // A thick, short, far-reaching square handle folds over itself at its
+        // corners: the sampler's check refuses it, and the mesh shows why.
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut mug = MugParams {
+            height_m: 0.07,
+            ..MugParams::sample(&mut rng)
+        };
+        let (lo, _) = mug.attachment_range(0.012);
+        let folding = HandleParams {
+            shape: HandleShape::SquareIsh,
+            lower_z_m: lo,
+            upper_z_m: lo + 0.02,
+            width_m: 0.012,
+            thickness_m: 0.012,
+            clearance_m: 0.03,
+        };
+        assert!(!mug.handle_curvature_ok(&folding));
+        mug.handle = Some(folding);
+        let mesh = mug.build();
+        assert!(crate::mesh::topology::is_watertight(&mesh));
+        assert!(crate::mesh::topology::self_intersections(&mesh).unwrap() > 0);
+    }
+
+    #[test]
     fn params_serialise_with_their_category() {
         let (_, params) = generate(Category::Knife, 4);
         let text = serde_json::to_string(&params).unwrap();
