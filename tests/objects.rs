@@ -402,7 +402,7 @@ fn truncated_and_malformed_obj_files_name_file_and_line() {
     for k in 1..40 {
         let at = text.len() * k / 40;
         let at = (0..=at).rev().find(|&i| text.is_char_boundary(i)).unwrap();
-        match parse_obj(text[..at].as_bytes(), Path::new("prefix.obj")) {
+        match parse_obj(&text.as_bytes()[..at], Path::new("prefix.obj")) {
             Ok(m) => assert!(m.validate(Path::new("prefix.obj")).is_ok()),
             Err(e) => assert!(e.to_string().contains("prefix.obj"), "{e}"),
         }

@@ -132,10 +132,10 @@ impl NoiseModel {
             return z_m;
         }
         let fb = focal_px * self.baseline_m;
-        // Positive, so truncating x + 0.5 rounds to nearest (and stays inlined).
-        let steps = (fb / z_m / self.disparity_step_px + 0.5) as u64;
-        let disparity = steps as f64 * self.disparity_step_px;
-        fb / disparity
+        // Disparity in whole steps; positive, so truncating x + 0.5 rounds to
+        // nearest (and stays inlined: this runs for every pixel).
+        let steps = (fb / (z_m * self.disparity_step_px) + 0.5) as u64;
+        fb / (steps as f64 * self.disparity_step_px)
     }
 
     /// The largest depth change quantisation makes at depth `z_m` (half a step, m).
@@ -300,8 +300,12 @@ impl DepthCamera {
         hits.par_chunks_mut(width).enumerate().for_each(|(v, row)| {
             let y = (v as f64 - intr.cy_px) / intr.fy_px;
             for (u, hit) in row.iter_mut().enumerate() {
-                let dir = Vector3::new(columns[u], y, 1.0);
-                *hit = self.cast(u as u32, v as u32, dir, table.as_ref(), &placed);
+                *hit = self.cast(
+                    (u as u32, v as u32),
+                    (columns[u], y),
+                    table.as_ref(),
+                    &placed,
+                );
             }
         });
 
@@ -354,17 +358,17 @@ impl DepthCamera {
         if f64::from(hit.cos_incidence) < min_cos_incidence {
             return (Return::Grazing, f32::NAN);
         }
-        let neighbours = [
-            (u > 0).then(|| v * width + u - 1),
-            (u + 1 < width).then(|| v * width + u + 1),
-            (v > 0).then(|| (v - 1) * width + u),
-            (v + 1 < height).then(|| (v + 1) * width + u),
-        ];
+        // Plain comparisons: this runs for every pixel of every frame.
         let jump = self.noise.edge_jump_fraction * z;
-        let on_edge = neighbours
-            .into_iter()
-            .flatten()
-            .any(|n| hits[n].is_none_or(|h| (f64::from(h.z_m) - z).abs() > jump));
+        let breaks = |n: usize| match hits[n] {
+            Some(h) => (f64::from(h.z_m) - z).abs() > jump,
+            None => true,
+        };
+        let i = v * width + u;
+        let on_edge = (u > 0 && breaks(i - 1))
+            || (u + 1 < width && breaks(i + 1))
+            || (v > 0 && breaks(i - width))
+            || (v + 1 < height && breaks(i + width));
         if on_edge {
             return (Return::Edge, f32::NAN);
         }
@@ -377,26 +381,26 @@ impl DepthCamera {
         (Return::Valid, measured as f32)
     }
 
-    /// The first surface along pixel `(u, v)`'s ray `dir` (optical frame, `z = 1`)
+    /// The first surface along pixel `(u, v)`'s ray `(x, y, 1)` (optical frame)
     /// within the maximum range.
     fn cast(
         &self,
-        u: u32,
-        v: u32,
-        dir: Vector3<f64>,
+        (u, v): (u32, u32),
+        (x, y): (f64, f64),
         table: Option<&TableInCamera>,
         placed: &[Placed],
     ) -> Option<Hit> {
         let max_z = self.intrinsics.max_range_m;
-        let norm = dir.norm();
+        let norm = (x * x + y * y + 1.0).sqrt();
         let mut best: Option<Hit> = table
-            .and_then(|t| t.cast(&dir, norm))
+            .and_then(|t| t.cast(x, y, norm))
             .filter(|h| f64::from(h.z_m) <= max_z);
-        let ray = Ray::new(Point3::origin(), dir);
         for (index, p) in placed.iter().enumerate() {
             if !p.columns.contains(&u) || !p.rows.contains(&v) {
                 continue;
             }
+            let dir = Vector3::new(x, y, 1.0);
+            let ray = Ray::new(Point3::origin(), dir);
             let limit = best.map_or(max_z, |b| f64::from(b.z_m));
             if let Some(hit) =
                 p.shape
@@ -442,8 +446,9 @@ impl DepthCamera {
 /// The table box seen from the camera: the camera's position and axes in the
 /// base frame (where the box is axis-aligned) and the box's corners.
 struct TableInCamera {
-    origin: Vector3<f64>,
-    axes: nalgebra::Matrix3<f64>,
+    origin: [f64; 3],
+    /// Rows of the rotation `base_from_camera`.
+    rows: [[f64; 3]; 3],
     lo: [f64; 3],
     hi: [f64; 3],
 }
@@ -451,17 +456,18 @@ struct TableInCamera {
 impl TableInCamera {
     fn new(table: &TableBox, base_from_camera: &Pose) -> TableInCamera {
         let (lo, hi) = table.corners();
+        let m = base_from_camera.rotation.to_rotation_matrix().into_inner();
         TableInCamera {
-            origin: base_from_camera.translation.vector,
-            axes: base_from_camera.rotation.to_rotation_matrix().into_inner(),
+            origin: base_from_camera.translation.vector.into(),
+            rows: [0, 1, 2].map(|r| [m[(r, 0)], m[(r, 1)], m[(r, 2)]]),
             lo,
             hi,
         }
     }
 
-    /// The hit of the optical-frame ray `dir` (`z = 1`, length `norm`).
-    fn cast(&self, dir: &Vector3<f64>, norm: f64) -> Option<Hit> {
-        let base_dir = self.axes * dir;
+    /// The hit of the optical-frame ray `(x, y, 1)` of length `norm`.
+    fn cast(&self, x: f64, y: f64, norm: f64) -> Option<Hit> {
+        let base_dir = self.rows.map(|r| r[0] * x + r[1] * y + r[2]);
         let (z_m, axis) = ray_box(self.origin, base_dir, self.lo, self.hi)?;
         // The face normal is a base axis, so its cosine with the ray is the
         // ray's base-frame component.
@@ -476,12 +482,7 @@ impl TableInCamera {
 /// The entry parameter `t` of the ray `origin + t dir` into the axis-aligned box
 /// `[lo, hi]` and the axis of the face it enters through; `None` if it misses or
 /// starts inside.
-fn ray_box(
-    origin: Vector3<f64>,
-    dir: Vector3<f64>,
-    lo: [f64; 3],
-    hi: [f64; 3],
-) -> Option<(f64, usize)> {
+fn ray_box(origin: [f64; 3], dir: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> Option<(f64, usize)> {
     let (mut t_enter, mut t_exit, mut axis) = (f64::NEG_INFINITY, f64::INFINITY, 0);
     for k in 0..3 {
         if dir[k] == 0.0 {
@@ -535,7 +536,7 @@ mod tests {
             thickness_m: 0.1,
         };
         let (lo, hi) = table.corners();
-        let ray_box = |o, d| ray_box(o, d, lo, hi);
+        let ray_box = |o: Vector3<f64>, d: Vector3<f64>| ray_box(o.into(), d.into(), lo, hi);
         // From above, straight down: the top face (z axis) at t = 2.
         let hit = ray_box(Vector3::new(0.1, 0.1, 1.0), Vector3::new(0.0, 0.0, -0.5));
         assert_eq!(hit, Some((2.0, 2)));
