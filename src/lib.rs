@@ -16,3 +16,4 @@ pub mod mesh;
 pub mod ply;
 pub mod robot;
 pub mod trial;
+pub mod sim;

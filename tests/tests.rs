@@ -3,3 +3,5 @@
 mod shipped_files;
 mod trial;
 mod calib;
+mod camera;
+mod objects;

@@ -15,6 +15,8 @@ pub enum BenchCommand {
     Ik(IkBenchArgs),
     /// Hand–eye calibration: median solve time of each method on synthetic samples.
     Calib(CalibBenchArgs),
+    /// Depth camera: median time to render a 640x480 frame of the table and a mug.
+    Render(RenderBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -48,11 +50,26 @@ pub struct CalibBenchArgs {
     pub json: bool,
 }
 
+/// Options of `cell bench render`.
+#[derive(Debug, Args)]
+pub struct RenderBenchArgs {
+    /// Number of timed renders.
+    #[arg(long, default_value_t = 20)]
+    pub repeats: usize,
+    /// Seed of the mug model and the first frame's noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print JSON (always JSON; accepted for uniformity).
+    #[arg(long)]
+    pub json: bool,
+}
+
 /// Runs one benchmark.
 pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
     match which {
         BenchCommand::Ik(args) => super::robot::bench_ik(config, args),
         BenchCommand::Calib(args) => super::calibrate::bench_calib(args),
+        BenchCommand::Render(args) => super::camera::bench_render(config, args),
     }
 }
 

@@ -5,6 +5,8 @@
 
 pub mod bench;
 mod calibrate;
+mod camera;
+mod objects;
 mod output;
 mod robot;
 mod trial;
@@ -46,6 +48,12 @@ pub enum Command {
     /// Hand–eye calibration of the fixed camera (base_from_camera).
     #[command(subcommand)]
     Calibrate(calibrate::CalibrateCommand),
+    /// Procedural object models: write category instances as mesh files.
+    #[command(subcommand)]
+    Objects(objects::ObjectsCommand),
+    /// The simulated depth camera: render scenes to point clouds.
+    #[command(subcommand)]
+    Camera(camera::CameraCommand),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -78,6 +86,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Report(args) => trial::report(args),
         Command::Log(which) => trial::log(which),
         Command::Calibrate(which) => calibrate::run(which),
+        Command::Objects(which) => objects::run(which),
+        Command::Camera(which) => camera::run(&cli.config, which),
         Command::Bench(which) => bench::run(&cli.config, which),
     }
 }

@@ -2,6 +2,9 @@
 
 pub mod ply;
 pub mod stl;
+pub mod obj;
+pub mod procedural;
+pub mod topology;
 
 use crate::geometry::Pose;
 use nalgebra::Point3;
@@ -118,6 +121,19 @@ impl TriMesh {
             vertices: self.vertices.iter().map(|v| target_from_mesh * v).collect(),
             triangles: self.triangles.clone(),
         }
+    }
+
+    /// The mesh as a parry tri-mesh (with its BVH) for ray casts and collision
+    /// queries; `source` names it in errors.
+    pub fn to_parry(&self, source: &Path) -> Result<parry3d_f64::shape::TriMesh, MeshError> {
+        self.validate(source)?;
+        parry3d_f64::shape::TriMesh::new(self.vertices.clone(), self.triangles.clone()).map_err(
+            |_| MeshError::Empty {
+                path: source.to_path_buf(),
+                vertices: self.vertices.len(),
+                triangles: self.triangles.len(),
+            },
+        )
     }
 
     /// The three corners of triangle `i`.
