@@ -13,3 +13,6 @@ pub mod config;
 pub mod geometry;
 pub mod mesh;
 pub mod robot;
+pub mod clock;
+pub mod hw;
+pub mod trajectory;
