@@ -16,3 +16,4 @@ pub mod robot;
 pub mod clock;
 pub mod hw;
 pub mod trajectory;
+pub mod sim;
