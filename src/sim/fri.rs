@@ -508,6 +508,11 @@ impl FriSimulator {
         &self.latencies_s
     }
 
+    /// Removes and returns the answer latencies recorded so far (s).
+    pub fn take_latencies_s(&mut self) -> Vec<f64> {
+        std::mem::take(&mut self.latencies_s)
+    }
+
     /// When the next measurement is due (clock time).
     pub fn next_send_time(&self) -> Duration {
         self.next_send

@@ -8,13 +8,13 @@
 //! is `crate::sim::fri`.
 
 pub mod datagram;
-//TMP pub mod driver;
+pub mod driver;
 
 pub use datagram::{
     CmdFlags, CommandDatagram, ControlMode, DatagramError, FriState, MeasurementDatagram,
     Quality,
 };
-//TMP pub use driver::{DriverConfig, FriDriver, FriError, FriEvent, FriStatus};
+pub use driver::{DriverConfig, FriDriver, FriError, FriEvent, FriStatus};
 
 /// Number of joints of the LBR4+ (`LBR_MNJ`).
 pub const JOINTS: usize = 7;
