@@ -138,18 +138,19 @@ fn withheld_answers_drop_the_robot_to_monitor_and_the_driver_reports_it() {
             FriEvent::DroppedToMonitor {
                 state: FriState::Monitor,
                 quality: Quality::Unacceptable,
+                during_motion: true,
                 ..
             }
         ),
         "{event:?}"
     );
-    // The robot reported BAD (15 misses in a row) before dropping at 30: the driver
-    // stopped commanding then, below its minimum quality OK.
+    // The driver commands down to quality BAD (15 misses in a row here), so the
+    // motion runs until the robot drops at UNACCEPTABLE (30 in a row).
     assert_eq!(
         driver.wait_motion(id, 5.0),
-        Err(FriError::QualityTooLow {
-            quality: Quality::Bad,
-            min: Quality::Ok
+        Err(FriError::LeftCommandMode {
+            state: FriState::Monitor,
+            quality: Quality::Unacceptable
         })
     );
     // The simulator says why, and the arm has stopped short of the goal.

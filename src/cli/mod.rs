@@ -4,6 +4,7 @@
 //! `--json` and human-readable text otherwise; logs go to stderr.
 
 pub mod bench;
+mod fri;
 mod output;
 mod robot;
 
@@ -66,7 +67,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
-fn init_logging() {
+/// Logs to stderr via `tracing`; the level comes from `RUST_LOG` (default `warn`).
+pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
     let _ = tracing_subscriber::fmt()

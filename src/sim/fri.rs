@@ -391,6 +391,8 @@ pub struct SimCounters {
     pub bad_datagrams: u64,
     /// Times a measurement went out more than a cycle late (the simulator stalled).
     pub overruns: u64,
+    /// Times the robot dropped from command to monitor mode.
+    pub drops_to_monitor: u64,
     /// Events discarded because nobody collected them.
     pub events_discarded: u64,
 }
@@ -521,6 +523,11 @@ impl FriSimulator {
     /// Removes and returns the events so far (oldest first).
     pub fn take_events(&mut self) -> Vec<SimEvent> {
         self.events.drain(..).collect()
+    }
+
+    /// Whether the KRL program will call `friStart` once quality allows.
+    pub fn start_requested(&self) -> bool {
+        self.start_requested
     }
 
     /// The KRL program asks for `friStart` again: it happens once quality has been
@@ -741,6 +748,7 @@ impl FriSimulator {
         self.last_applied = None;
         self.perfect_cycles = 0;
         self.drop_reason = Some(reason);
+        self.counters.drops_to_monitor += 1;
         let at_s = self.at_s(now);
         self.push_event(SimEvent::DroppedToMonitor { reason, at_s });
     }
@@ -1300,6 +1308,7 @@ mod tests {
         assert_eq!(m.data.cmd_jnt_pos, stopped.map(|v| v as f32));
         assert_eq!(m.data.cmd_jnt_pos_fri_offset, [0.0; JOINTS]);
         assert!(m.interface.stats.miss_counter >= 5);
+        assert_eq!(sim.counters().drops_to_monitor, 1);
         // The KRL program does not restart by itself.
         run(&mut sim, &mut t, 200, |_, _| Some(None));
         assert_eq!(sim.state(), FriState::Monitor);

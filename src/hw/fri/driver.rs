@@ -9,9 +9,11 @@
 //! # Commanding
 //! The driver sends its own joint positions only while the robot is in command mode,
 //! its drives are powered and the link quality is at least
-//! [`DriverConfig::min_command_quality`] (default OK; it may be lowered to BAD but
-//! never below: the robot refuses commands at UNACCEPTABLE and the link is failing).
-//! Otherwise it mirrors the robot's own command, `cmdJntPos + cmdJntPosFriOffset`,
+//! [`DriverConfig::min_command_quality`]. The default is BAD (issue 7: no commands
+//! below quality BAD): the robot refuses commands only at UNACCEPTABLE, and
+//! at BAD it still follows them, bridging a single missing answer by extrapolation.
+//! The minimum may be raised to OK or PERFECT, never lowered below BAD.
+//! Otherwise the driver mirrors the robot's own command, `cmdJntPos + cmdJntPosFriOffset`,
 //! which moves nothing. On entering command mode it holds the mirrored position, so
 //! the first command matches what the robot is doing. Trajectory time advances by
 //! one measurement period per measurement (by the sequence-number gap when some were
@@ -263,7 +265,7 @@ impl Default for DriverConfig {
         DriverConfig {
             bind_addr: SocketAddr::new(IpAddr::V4(Ipv4Addr::UNSPECIFIED), DEFAULT_PORT),
             timeout_s: 0.1,
-            min_command_quality: Quality::Ok,
+            min_command_quality: Quality::Bad,
             start_tolerance_rad: 1e-4,
         }
     }
@@ -1132,33 +1134,52 @@ mod tests {
 
     #[test]
     fn commands_only_at_the_minimum_quality_or_better() {
+        // Default minimum BAD: refused at UNACCEPTABLE, allowed at BAD.
         let mut d = core();
         let q0 = [0.0f32; JOINTS];
-        d.on_measurement(&measurement(1, FriState::Command, Quality::Bad, q0), MS);
+        d.on_measurement(&measurement(1, FriState::Command, Quality::Unacceptable, q0), MS);
         let traj = Trajectory::point_to_point([0.0; JOINTS], [0.1; JOINTS], &limits()).unwrap();
         assert_eq!(
             d.start_trajectory(traj.clone()),
             Err(FriError::QualityTooLow {
-                quality: Quality::Bad,
-                min: Quality::Ok
+                quality: Quality::Unacceptable,
+                min: Quality::Bad
             })
         );
-        d.on_measurement(&measurement(2, FriState::Command, Quality::Ok, q0), 2 * MS);
+        d.on_measurement(&measurement(2, FriState::Command, Quality::Bad, q0), 2 * MS);
         let id = d.start_trajectory(traj.clone()).unwrap();
-        assert_eq!(d.start_trajectory(traj), Err(FriError::Busy { id }));
-        // Quality falls to BAD mid-motion: abort and mirror.
+        assert_eq!(d.start_trajectory(traj.clone()), Err(FriError::Busy { id }));
+        // Quality falls to UNACCEPTABLE mid-motion: abort and mirror.
         let c = d
-            .on_measurement(&measurement(3, FriState::Command, Quality::Bad, [0.05; JOINTS]), 3 * MS)
+            .on_measurement(
+                &measurement(3, FriState::Command, Quality::Unacceptable, [0.05; JOINTS]),
+                3 * MS,
+            )
             .unwrap();
         assert_eq!(c.jnt_pos, [0.05; JOINTS]);
         assert_eq!(
             d.outcome(id),
             Some(Err(FriError::QualityTooLow {
-                quality: Quality::Bad,
-                min: Quality::Ok
+                quality: Quality::Unacceptable,
+                min: Quality::Bad
             }))
         );
-        // BAD may be configured as the minimum, but nothing lower.
+        // A stricter minimum (OK) refuses BAD.
+        let mut strict = DriverCore::new(DriverConfig {
+            min_command_quality: Quality::Ok,
+            ..Default::default()
+        })
+        .unwrap();
+        strict.on_measurement(&measurement(1, FriState::Command, Quality::Bad, q0), MS);
+        assert_eq!(
+            strict.start_trajectory(traj),
+            Err(FriError::QualityTooLow {
+                quality: Quality::Bad,
+                min: Quality::Ok
+            })
+        );
+        assert!(!strict.status().commanding);
+        // Nothing below BAD may be configured.
         let low = DriverCore::new(DriverConfig {
             min_command_quality: Quality::Unacceptable,
             ..Default::default()
