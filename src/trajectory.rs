@@ -400,6 +400,7 @@ mod tests {
     }
 
     /// Checks the sampled positions against the limits by finite differences.
+    #[allow(clippy::needless_range_loop)] // j indexes the samples and the limits alike
     fn assert_within_limits(positions: &[[f64; 7]], dt: f64, limits: &JointLimits<7>) {
         for w in positions.windows(2) {
             for j in 0..7 {
@@ -458,7 +459,11 @@ mod tests {
         let (d, v, a) = (2.5, l.velocity_rad_s[0], l.acceleration_rad_s2[0]);
         assert!(d >= v * v / a);
         let expected = d / v + v / a;
-        assert!((traj.duration_s() - expected).abs() < 1e-12, "{}", traj.duration_s());
+        assert!(
+            (traj.duration_s() - expected).abs() < 1e-12,
+            "{}",
+            traj.duration_s()
+        );
         // Short move: triangle t = 2 sqrt(d/a).
         let q1 = [0.2, 0.01, 0.0, 0.0, 0.0, 0.0, 0.0];
         let traj = Trajectory::point_to_point(q0, q1, &l).unwrap();
@@ -568,7 +573,9 @@ mod tests {
         assert!(stop.duration_s() > 0.0);
         let dt = 0.001;
         let steps = (stop.duration_s() / dt).ceil() as usize + 5;
-        let p: Vec<[f64; 7]> = (0..=steps).map(|k| stop.sample(k as f64 * dt).position).collect();
+        let p: Vec<[f64; 7]> = (0..=steps)
+            .map(|k| stop.sample(k as f64 * dt).position)
+            .collect();
         // Prefix with the motion before the stop, so the transition is checked too.
         let mut all = vec![
             traj.sample(0.4 * traj.duration_s() - 2.0 * dt).position,

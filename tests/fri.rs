@@ -82,7 +82,12 @@ fn driver_reaches_command_mode_and_tracks_a_trajectory() {
     // The held position is the robot's own command (the initial joints, as f32).
     let start = status.commanded_rad;
     for j in 0..7 {
-        assert!((start[j] - q0[j]).abs() < 1e-6, "joint {j}: {} vs {}", start[j], q0[j]);
+        assert!(
+            (start[j] - q0[j]).abs() < 1e-6,
+            "joint {j}: {} vs {}",
+            start[j],
+            q0[j]
+        );
     }
     let goal = [0.4, 0.1, -0.2, 0.8, 0.1, -0.2, 0.6];
     let via = [0.2, 0.0, 0.0, 0.6, 0.0, 0.0, 0.3];
@@ -108,7 +113,11 @@ fn driver_reaches_command_mode_and_tracks_a_trajectory() {
         let q = sim.with(|s| s.joints_rad());
         (0..7).all(|j| (q[j] - goal[j]).abs() < 1e-5).then_some(q)
     });
-    assert!(settled.is_some(), "arm at {:?}, goal {goal:?}", sim.with(|s| s.joints_rad()));
+    assert!(
+        settled.is_some(),
+        "arm at {:?}, goal {goal:?}",
+        sim.with(|s| s.joints_rad())
+    );
     let summary = sim.stop().unwrap();
     assert_eq!(summary.state, FriState::Command);
     assert_eq!(summary.drop_reason, None);
@@ -160,9 +169,16 @@ fn withheld_answers_drop_the_robot_to_monitor_and_the_driver_reports_it() {
         "{reason:?}"
     );
     let stopped = sim.with(|s| s.joints_rad());
-    assert!((stopped[0] - goal[0]).abs() > 0.1, "arm reached the goal anyway");
+    assert!(
+        (stopped[0] - goal[0]).abs() > 0.1,
+        "arm reached the goal anyway"
+    );
     std::thread::sleep(Duration::from_millis(50));
-    assert_eq!(sim.with(|s| s.joints_rad()), stopped, "arm moved after the drop");
+    assert_eq!(
+        sim.with(|s| s.joints_rad()),
+        stopped,
+        "arm moved after the drop"
+    );
     assert!(!driver.status().commanding);
     let summary = sim.stop().unwrap();
     assert_eq!(summary.state, FriState::Monitor);
@@ -238,4 +254,43 @@ fn event_text(event: &FriEvent) -> String {
         FriEvent::BadDatagram { error } => error.to_string(),
         other => format!("{other:?}"),
     }
+}
+
+#[test]
+fn simulator_process_drives_the_driver_into_command_mode() {
+    let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
+    let driver = FriDriver::start(
+        DriverConfig {
+            bind_addr: LOCALHOST_ANY_PORT.parse().unwrap(),
+            timeout_s: 0.2,
+            ..DriverConfig::default()
+        },
+        clock,
+    )
+    .unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cell-sim-arm"))
+        .args(["--pc-addr", &driver.local_addr().to_string()])
+        .args(["--cycle-ms", "2", "--seconds", "60"])
+        .args(["--initial-joints", "0.25,-0.5,0.125,1,-1,0.5,-0.75"])
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let reached = driver.wait_until_commanding(20.0);
+    let late = reached.as_ref().ok().map(|_| {
+        // The robot process goes away: the driver reports a late measurement.
+        child.kill().unwrap();
+        driver.wait_event(10.0, |e| matches!(e, FriEvent::MeasurementLate { .. }))
+    });
+    let _ = child.kill();
+    let _ = child.wait();
+    let status = reached.unwrap();
+    assert_eq!(status.state, FriState::Command);
+    assert_eq!(
+        status.measured_rad,
+        [0.25, -0.5, 0.125, 1.0, -1.0, 0.5, -0.75]
+    );
+    assert!(
+        matches!(late, Some(Ok(Some(FriEvent::MeasurementLate { .. })))),
+        "{late:?}"
+    );
 }

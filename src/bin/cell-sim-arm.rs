@@ -15,7 +15,7 @@ use std::time::Duration;
 
 /// Simulated KUKA LBR4+ on FRI 1.x: measurements every cycle to the PC, commands back.
 #[derive(Debug, Parser)]
-#[command(name = "cell-sim-arm", version, about, long_about = None)]
+#[command(name = "cell-sim-arm", version)]
 struct Args {
     /// UDP address of the PC-side FRI driver (where measurements go).
     #[arg(long, default_value = "127.0.0.1:49938")]

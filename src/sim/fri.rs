@@ -668,8 +668,8 @@ impl FriSimulator {
         } else {
             1.0 - (-dt / tau).exp()
         };
-        for j in 0..JOINTS {
-            self.msr_rad[j] += alpha * (desired[j] - self.msr_rad[j]);
+        for (msr, goal) in self.msr_rad.iter_mut().zip(desired) {
+            *msr += alpha * (goal - *msr);
         }
     }
 
@@ -683,7 +683,10 @@ impl FriSimulator {
             misses as f64 / n as f64
         };
         let c = self.consecutive_misses;
-        let quality = if n == 0 || c >= t.unacceptable_consecutive_misses || miss_rate > t.bad_max_miss_rate {
+        let quality = if n == 0
+            || c >= t.unacceptable_consecutive_misses
+            || miss_rate > t.bad_max_miss_rate
+        {
             Quality::Unacceptable
         } else if c >= t.bad_consecutive_misses || miss_rate > t.ok_max_miss_rate {
             Quality::Bad
@@ -755,7 +758,10 @@ impl FriSimulator {
 
     fn limit_violation(&self, q: &[f64; JOINTS]) -> Option<DropReason> {
         (0..JOINTS).find_map(|joint| {
-            let (lo, hi) = (self.config.position_min_rad[joint], self.config.position_max_rad[joint]);
+            let (lo, hi) = (
+                self.config.position_min_rad[joint],
+                self.config.position_max_rad[joint],
+            );
             let limit_rad = if q[joint] <= lo {
                 lo
             } else if q[joint] >= hi {
@@ -844,8 +850,8 @@ impl FriSimulator {
             return;
         }
         let dt = f64::from(cycles) * self.config.cycle_s;
-        for joint in 0..JOINTS {
-            let speed_rad_s = (q[joint] - self.last_cmd_rad[joint]).abs() / dt;
+        for (joint, (qj, last)) in q.iter().zip(self.last_cmd_rad).enumerate() {
+            let speed_rad_s = (qj - last).abs() / dt;
             let limit_rad_s = self.config.velocity_limit_rad_s[joint];
             if speed_rad_s >= limit_rad_s {
                 let reason = DropReason::VelocityLimit {
@@ -982,33 +988,31 @@ pub fn run_udp(
             }
             Ok(())
         });
-        let result = (|| {
-            while !stop.load(Ordering::Relaxed) && !receiver.is_finished() {
-                let now = clock.now();
-                if until.is_some_and(|end| now >= end) {
-                    break;
-                }
-                let (measurement, next) = {
-                    let mut sim = lock(sim);
-                    let m = sim.poll(now);
-                    (m, sim.next_send_time())
-                };
-                if let Some(m) = measurement {
-                    if let Err(e) = socket.send_to(&m.encode(), pc_addr) {
-                        // The robot keeps sending whether or not anyone listens.
-                        tracing::debug!("FRI sim: send to {pc_addr}: {e}");
-                    }
-                }
-                let wait = next.saturating_sub(clock.now());
-                if !wait.is_zero() {
-                    std::thread::sleep(wait);
+        // The sending loop runs here; it ends at `stop`, at `until`, or when the
+        // receiver fails.
+        while !stop.load(Ordering::Relaxed) && !receiver.is_finished() {
+            let now = clock.now();
+            if until.is_some_and(|end| now >= end) {
+                break;
+            }
+            let (measurement, next) = {
+                let mut sim = lock(sim);
+                let m = sim.poll(now);
+                (m, sim.next_send_time())
+            };
+            if let Some(m) = measurement {
+                if let Err(e) = socket.send_to(&m.encode(), pc_addr) {
+                    // The robot keeps sending whether or not anyone listens.
+                    tracing::debug!("FRI sim: send to {pc_addr}: {e}");
                 }
             }
-            Ok(())
-        })();
+            let wait = next.saturating_sub(clock.now());
+            if !wait.is_zero() {
+                std::thread::sleep(wait);
+            }
+        }
         stop.store(true, Ordering::Relaxed);
-        let received = receiver.join().unwrap_or(Ok(()));
-        result.and(received)
+        receiver.join().unwrap_or(Ok(()))
     })
 }
 
@@ -1167,9 +1171,9 @@ mod tests {
         let m = run(&mut sim, &mut t, 1, |_, _| Some(None));
         assert_eq!(m.interface.state, FriState::Command);
         let events = sim.take_events();
-        assert!(events
-            .iter()
-            .any(|e| matches!(e, SimEvent::StartedCommanding { at_s } if (*at_s - 0.109).abs() < 1e-9)));
+        assert!(events.iter().any(
+            |e| matches!(e, SimEvent::StartedCommanding { at_s } if (*at_s - 0.109).abs() < 1e-9)
+        ));
         assert_eq!(m.interface.stats.answer_rate, 1.0);
         assert!((m.interface.stats.latency_s - 100e-6).abs() < 1e-9);
         assert_eq!(m.interface.stats.miss_counter, 0);
@@ -1281,7 +1285,10 @@ mod tests {
         });
         assert_eq!(m.interface.state, FriState::Command);
         assert!((sim.joints_rad()[1] - (last_sent + 0.001)).abs() < 1e-6);
-        assert!(sim.take_events().iter().all(|e| !matches!(e, SimEvent::DroppedToMonitor { .. })));
+        assert!(sim
+            .take_events()
+            .iter()
+            .all(|e| !matches!(e, SimEvent::DroppedToMonitor { .. })));
         // Answers stop: BAD after 2 misses, UNACCEPTABLE (drop) after 5.
         let mut states = Vec::new();
         run(&mut sim, &mut t, 7, |_, m| {
@@ -1370,7 +1377,10 @@ mod tests {
         assert_eq!(sim.receive(&cmd.encode(), t), Answer::Unexpected);
         cmd.refl_seq_count = m.send_seq_count;
         cmd.cmd_flags = CmdFlags::JNT_POS | CmdFlags::JNT_STIFF;
-        assert!(matches!(sim.receive(&cmd.encode(), t), Answer::InTime { .. }));
+        assert!(matches!(
+            sim.receive(&cmd.encode(), t),
+            Answer::InTime { .. }
+        ));
         assert_eq!(sim.receive(&cmd.encode(), t), Answer::Duplicate);
         assert_eq!(
             sim.drop_reason(),
@@ -1382,8 +1392,12 @@ mod tests {
         t += MS;
         let _ = sim.poll(t);
         let events = sim.take_events();
-        assert!(events.iter().any(|e| matches!(e, SimEvent::BadDatagram { .. })));
-        assert!(events.iter().any(|e| matches!(e, SimEvent::UnexpectedAnswer { .. })));
+        assert!(events
+            .iter()
+            .any(|e| matches!(e, SimEvent::BadDatagram { .. })));
+        assert!(events
+            .iter()
+            .any(|e| matches!(e, SimEvent::UnexpectedAnswer { .. })));
     }
 
     #[test]

@@ -582,7 +582,11 @@ impl<'a> Reader<'a> {
             })
         }
     }
-    fn f32s<const N: usize>(&self, at: usize, field: &'static str) -> Result<[f32; N], DatagramError> {
+    fn f32s<const N: usize>(
+        &self,
+        at: usize,
+        field: &'static str,
+    ) -> Result<[f32; N], DatagramError> {
         let mut out = [0.0; N];
         for (i, v) in out.iter_mut().enumerate() {
             *v = self.f32(at + 4 * i, field)?;
@@ -875,7 +879,10 @@ mod tests {
         ];
         for (at, n, first, last) in arrays {
             assert!((f(&b, at) - first).abs() < 1e-6, "first at {at}");
-            assert!((f(&b, at + 4 * (n - 1)) - last).abs() < 1e-4, "last at {at}");
+            assert!(
+                (f(&b, at + 4 * (n - 1)) - last).abs() < 1e-4,
+                "last at {at}"
+            );
         }
         assert_eq!(888 + 4 * 7, 916);
     }
@@ -918,7 +925,11 @@ mod tests {
         ];
         for (at, n, first) in arrays {
             assert_eq!(f(&b, at), first, "first at {at}");
-            assert_eq!(f(&b, at + 4 * (n - 1)), first + (n - 1) as f32, "last at {at}");
+            assert_eq!(
+                f(&b, at + 4 * (n - 1)),
+                first + (n - 1) as f32,
+                "last at {at}"
+            );
         }
         assert_eq!(CommandDatagram::decode(&b).unwrap(), c);
     }
@@ -974,7 +985,11 @@ mod tests {
     #[test]
     fn unknown_enumerations_and_non_finite_floats_are_rejected() {
         let b = measurement().encode();
-        for (at, field, value) in [(144, "state", 3u16), (146, "quality", 4), (182, "control", 4)] {
+        for (at, field, value) in [
+            (144, "state", 3u16),
+            (146, "quality", 4),
+            (182, "control", 4),
+        ] {
             let mut bad = b;
             bad[at..at + 2].copy_from_slice(&value.to_le_bytes());
             assert_eq!(
@@ -997,13 +1012,21 @@ mod tests {
         nan[220..224].copy_from_slice(&f32::NAN.to_le_bytes());
         assert!(matches!(
             MeasurementDatagram::decode(&nan),
-            Err(DatagramError::NonFinite { field: "msrJntPos", offset: 220, .. })
+            Err(DatagramError::NonFinite {
+                field: "msrJntPos",
+                offset: 220,
+                ..
+            })
         ));
         let mut flags = CommandDatagram::default().encode();
         flags[140..144].copy_from_slice(&0x0002u32.to_le_bytes()); // a velocity flag
         assert!(matches!(
             CommandDatagram::decode(&flags),
-            Err(DatagramError::UnknownValue { field: "cmdFlags", value: 2, .. })
+            Err(DatagramError::UnknownValue {
+                field: "cmdFlags",
+                value: 2,
+                ..
+            })
         ));
     }
 

@@ -687,7 +687,9 @@ impl DriverCore {
         let Some(m) = self.last.filter(|_| !self.late) else {
             return Err(FriError::NotCommanding {
                 state: self.last.map_or(FriState::Off, |m| m.interface.state),
-                quality: self.last.map_or(Quality::Unacceptable, |m| m.interface.quality),
+                quality: self
+                    .last
+                    .map_or(Quality::Unacceptable, |m| m.interface.quality),
                 power: self.last.map_or(0, |m| m.robot.power),
             });
         };
@@ -1058,7 +1060,12 @@ mod tests {
 
     const MS: Duration = Duration::from_millis(1);
 
-    fn measurement(seq: u16, state: FriState, quality: Quality, q: [f32; JOINTS]) -> MeasurementDatagram {
+    fn measurement(
+        seq: u16,
+        state: FriState,
+        quality: Quality,
+        q: [f32; JOINTS],
+    ) -> MeasurementDatagram {
         MeasurementDatagram {
             send_seq_count: seq,
             interface: InterfaceState {
@@ -1095,6 +1102,25 @@ mod tests {
     }
 
     #[test]
+    fn configuration_comes_from_the_cell_file() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(crate::config::DEFAULT_CONFIG_PATH);
+        let cell = crate::config::CellConfig::load(&path).unwrap();
+        let config = DriverConfig::from_cell(&cell.fri).unwrap();
+        assert_eq!(config.bind_addr, "127.0.0.1:49938".parse().unwrap());
+        assert_eq!(config.bind_addr.port(), DEFAULT_PORT);
+        assert_eq!(config.timeout_s, cell.fri.timeout_s);
+        assert_eq!(config.min_command_quality, Quality::Bad);
+        let mut fri = cell.fri.clone();
+        fri.bind_addr = "localhost".into();
+        let err = DriverConfig::from_cell(&fri).unwrap_err();
+        assert!(
+            err.to_string().contains("fri.bind_addr = localhost"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn answers_reflect_the_measurement_and_count_across_the_wrap() {
         let mut d = core();
         d.send_seq = 65534;
@@ -1110,7 +1136,10 @@ mod tests {
             .unwrap();
         assert_eq!((c.send_seq_count, c.refl_seq_count), (0, 0));
         assert_eq!(c.cmd_flags, CmdFlags::JNT_POS);
-        assert!(d.take_events().iter().all(|e| !matches!(e, FriEvent::MeasurementsMissed { .. })));
+        assert!(d
+            .take_events()
+            .iter()
+            .all(|e| !matches!(e, FriEvent::MeasurementsMissed { .. })));
     }
 
     #[test]
@@ -1137,7 +1166,10 @@ mod tests {
         // Default minimum BAD: refused at UNACCEPTABLE, allowed at BAD.
         let mut d = core();
         let q0 = [0.0f32; JOINTS];
-        d.on_measurement(&measurement(1, FriState::Command, Quality::Unacceptable, q0), MS);
+        d.on_measurement(
+            &measurement(1, FriState::Command, Quality::Unacceptable, q0),
+            MS,
+        );
         let traj = Trajectory::point_to_point([0.0; JOINTS], [0.1; JOINTS], &limits()).unwrap();
         assert_eq!(
             d.start_trajectory(traj.clone()),
@@ -1184,7 +1216,13 @@ mod tests {
             min_command_quality: Quality::Unacceptable,
             ..Default::default()
         });
-        assert!(matches!(low, Err(FriError::BadConfig { field: "min_command_quality", .. })));
+        assert!(matches!(
+            low,
+            Err(FriError::BadConfig {
+                field: "min_command_quality",
+                ..
+            })
+        ));
     }
 
     #[test]
@@ -1196,19 +1234,31 @@ mod tests {
         end[0] += 0.4;
         let traj = Trajectory::point_to_point(start, end, &limits()).unwrap();
         // MON: mirror; CMD at quality PERFECT: hold the mirrored position.
-        d.on_measurement(&measurement(10, FriState::Monitor, Quality::Perfect, q0), MS);
+        d.on_measurement(
+            &measurement(10, FriState::Monitor, Quality::Perfect, q0),
+            MS,
+        );
         let c = d
-            .on_measurement(&measurement(11, FriState::Command, Quality::Perfect, q0), 2 * MS)
+            .on_measurement(
+                &measurement(11, FriState::Command, Quality::Perfect, q0),
+                2 * MS,
+            )
             .unwrap();
         assert_eq!(c.jnt_pos, q0);
         let id = d.start_trajectory(traj.clone()).unwrap();
         let c = d
-            .on_measurement(&measurement(12, FriState::Command, Quality::Perfect, q0), 3 * MS)
+            .on_measurement(
+                &measurement(12, FriState::Command, Quality::Perfect, q0),
+                3 * MS,
+            )
             .unwrap();
         assert_eq!(c.jnt_pos, traj.sample(0.001).position.map(|v| v as f32));
         // Two measurements lost: time advances by three periods and the gap is reported.
         let c = d
-            .on_measurement(&measurement(15, FriState::Command, Quality::Perfect, q0), 6 * MS)
+            .on_measurement(
+                &measurement(15, FriState::Command, Quality::Perfect, q0),
+                6 * MS,
+            )
             .unwrap();
         assert_eq!(c.jnt_pos, traj.sample(0.004).position.map(|v| v as f32));
         assert!(d.take_events().contains(&FriEvent::MeasurementsMissed {
@@ -1223,7 +1273,10 @@ mod tests {
         while d.outcome(id).is_none() {
             seq += 1;
             last = d
-                .on_measurement(&measurement(seq, FriState::Command, Quality::Perfect, q0), MS * u32::from(seq))
+                .on_measurement(
+                    &measurement(seq, FriState::Command, Quality::Perfect, q0),
+                    MS * u32::from(seq),
+                )
                 .unwrap();
             assert!(seq < 5000, "trajectory never ended");
         }
@@ -1233,14 +1286,20 @@ mod tests {
         assert_eq!(seq - 11, expected_cycles);
         // A stale (repeated) measurement is not answered.
         assert!(d
-            .on_measurement(&measurement(seq, FriState::Command, Quality::Perfect, q0), MS)
+            .on_measurement(
+                &measurement(seq, FriState::Command, Quality::Perfect, q0),
+                MS
+            )
             .is_none());
     }
 
     #[test]
     fn trajectory_must_start_at_the_commanded_position() {
         let mut d = core();
-        d.on_measurement(&measurement(1, FriState::Command, Quality::Perfect, [0.0; JOINTS]), MS);
+        d.on_measurement(
+            &measurement(1, FriState::Command, Quality::Perfect, [0.0; JOINTS]),
+            MS,
+        );
         let mut start = [0.0; JOINTS];
         start[4] = 0.01;
         let traj = Trajectory::point_to_point(start, [0.2; JOINTS], &limits()).unwrap();
@@ -1256,7 +1315,10 @@ mod tests {
         let mut fresh = core();
         assert!(matches!(
             fresh.start_trajectory(Trajectory::through(&[[0.0; JOINTS]], &limits()).unwrap()),
-            Err(FriError::NotCommanding { state: FriState::Off, .. })
+            Err(FriError::NotCommanding {
+                state: FriState::Off,
+                ..
+            })
         ));
     }
 
@@ -1267,7 +1329,10 @@ mod tests {
         d.on_measurement(&measurement(1, FriState::Command, Quality::Perfect, q0), MS);
         let traj = Trajectory::point_to_point([0.0; JOINTS], [0.3; JOINTS], &limits()).unwrap();
         let id = d.start_trajectory(traj).unwrap();
-        d.on_measurement(&measurement(2, FriState::Command, Quality::Perfect, q0), 2 * MS);
+        d.on_measurement(
+            &measurement(2, FriState::Command, Quality::Perfect, q0),
+            2 * MS,
+        );
         d.take_events();
         let m = measurement(3, FriState::Monitor, Quality::Unacceptable, [0.01; JOINTS]);
         let c = d.on_measurement(&m, 3 * MS).unwrap();
@@ -1294,12 +1359,18 @@ mod tests {
     fn a_late_measurement_is_a_safe_stop_then_the_link_recovers() {
         let mut d = core();
         let q0 = [0.0f32; JOINTS];
-        assert!(!d.check_late(Duration::from_secs(100)), "no robot yet: nothing is late");
+        assert!(
+            !d.check_late(Duration::from_secs(100)),
+            "no robot yet: nothing is late"
+        );
         d.on_measurement(&measurement(1, FriState::Command, Quality::Perfect, q0), MS);
         let traj = Trajectory::point_to_point([0.0; JOINTS], [0.3; JOINTS], &limits()).unwrap();
         let id = d.start_trajectory(traj).unwrap();
         let c = d
-            .on_measurement(&measurement(2, FriState::Command, Quality::Perfect, q0), 2 * MS)
+            .on_measurement(
+                &measurement(2, FriState::Command, Quality::Perfect, q0),
+                2 * MS,
+            )
             .unwrap();
         let held = c.jnt_pos;
         assert_ne!(held, q0);
@@ -1322,14 +1393,22 @@ mod tests {
         }));
         // The link returns with the robot still in CMD: hold the last command.
         let c = d
-            .on_measurement(&measurement(90, FriState::Command, Quality::Ok, q0), 90 * MS)
+            .on_measurement(
+                &measurement(90, FriState::Command, Quality::Ok, q0),
+                90 * MS,
+            )
             .unwrap();
         assert_eq!(c.jnt_pos, held);
         let c = d
-            .on_measurement(&measurement(91, FriState::Command, Quality::Ok, q0), 91 * MS)
+            .on_measurement(
+                &measurement(91, FriState::Command, Quality::Ok, q0),
+                91 * MS,
+            )
             .unwrap();
         assert_eq!(c.jnt_pos, held);
-        assert!(d.take_events().contains(&FriEvent::LinkRestored { after_s: 0.088 }));
+        assert!(d
+            .take_events()
+            .contains(&FriEvent::LinkRestored { after_s: 0.088 }));
     }
 
     #[test]
@@ -1343,9 +1422,12 @@ mod tests {
         let mut seq = 1u16;
         let mut step = |d: &mut DriverCore| {
             seq += 1;
-            d.on_measurement(&measurement(seq, FriState::Command, Quality::Perfect, q0), MS)
-                .unwrap()
-                .jnt_pos[0] as f64
+            d.on_measurement(
+                &measurement(seq, FriState::Command, Quality::Perfect, q0),
+                MS,
+            )
+            .unwrap()
+            .jnt_pos[0] as f64
         };
         let mut p = Vec::new();
         for _ in 0..300 {

@@ -11,8 +11,7 @@ pub mod datagram;
 pub mod driver;
 
 pub use datagram::{
-    CmdFlags, CommandDatagram, ControlMode, DatagramError, FriState, MeasurementDatagram,
-    Quality,
+    CmdFlags, CommandDatagram, ControlMode, DatagramError, FriState, MeasurementDatagram, Quality,
 };
 pub use driver::{DriverConfig, FriDriver, FriError, FriEvent, FriStatus};
 
