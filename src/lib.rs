@@ -9,11 +9,14 @@
 
 pub mod calib;
 pub mod cli;
+pub mod clock;
 pub mod cloud;
 pub mod config;
 pub mod geometry;
+pub mod hw;
 pub mod mesh;
 pub mod ply;
 pub mod robot;
 pub mod trial;
 pub mod sim;
+pub mod trajectory;

@@ -5,3 +5,4 @@ mod trial;
 mod calib;
 mod camera;
 mod objects;
+mod fri;

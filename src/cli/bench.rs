@@ -17,6 +17,8 @@ pub enum BenchCommand {
     Calib(CalibBenchArgs),
     /// Depth camera: median time to render a 640x480 frame of the table and a mug.
     Render(RenderBenchArgs),
+    /// FRI: the arm driver against the robot simulator over loopback UDP; answer latency and missed cycles.
+    Fri(super::fri::FriBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -70,6 +72,7 @@ pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Ik(args) => super::robot::bench_ik(config, args),
         BenchCommand::Calib(args) => super::calibrate::bench_calib(args),
         BenchCommand::Render(args) => super::camera::bench_render(config, args),
+        BenchCommand::Fri(args) => super::fri::bench_fri(config, args),
     }
 }
 

@@ -7,6 +7,7 @@ pub mod bench;
 mod calibrate;
 mod camera;
 mod objects;
+mod fri;
 mod output;
 mod robot;
 mod trial;
@@ -92,7 +93,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
-fn init_logging() {
+/// Logs to stderr via `tracing`; the level comes from `RUST_LOG` (default `warn`).
+pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
     let _ = tracing_subscriber::fmt()

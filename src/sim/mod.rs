@@ -1,5 +1,7 @@
-//! The simulated world: scenes of a table and object meshes, and a depth camera
-//! that renders them with a Kinect-like error model.
+//! The simulated world: scenes of a table and object meshes, a depth camera that
+//! renders them with a Kinect-like error model, and devices that speak the real
+//! protocols (FRI robot, CAN pucks), so the cell runs and is tested without hardware.
 
 pub mod camera;
+pub mod fri;
 pub mod scene;

@@ -1,0 +1,102 @@
+//! `cell-sim-arm`: the LBR4+ FRI robot simulator as its own process. It sends a
+//! measurement to the PC-side driver every cycle and follows its commands; see
+//! `graspcell::sim::fri` for the model.
+
+use anyhow::Context;
+use clap::Parser;
+use graspcell::clock::SystemClock;
+use graspcell::hw::fri::JOINTS;
+use graspcell::sim::fri::{run_udp, FriSimulator, SimConfig};
+use std::net::{SocketAddr, UdpSocket};
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+use std::sync::Mutex;
+use std::time::Duration;
+
+/// Simulated KUKA LBR4+ on FRI 1.x: measurements every cycle to the PC, commands back.
+#[derive(Debug, Parser)]
+#[command(name = "cell-sim-arm", version)]
+struct Args {
+    /// UDP address of the PC-side FRI driver (where measurements go).
+    #[arg(long, default_value = "127.0.0.1:49938")]
+    pc_addr: SocketAddr,
+    /// Local UDP address of the simulated robot (port 0 picks a free one).
+    #[arg(long, default_value = "127.0.0.1:0")]
+    bind: SocketAddr,
+    /// Measurement period (ms), 1 to 100.
+    #[arg(long, default_value_t = 1.0)]
+    cycle_ms: f64,
+    /// Initial joint angles A1,A2,E1,A3,A4,A5,A6 (rad); all zero if not given.
+    #[arg(long, allow_hyphen_values = true)]
+    initial_joints: Option<String>,
+    /// Time constant of the joints' lag behind the command (s); 0 tracks exactly.
+    #[arg(long, default_value_t = 0.0)]
+    tracking_time_constant_s: f64,
+    /// Stop after this many seconds; runs until killed if not given.
+    #[arg(long)]
+    seconds: Option<f64>,
+    /// Print the final summary as JSON (with --seconds).
+    #[arg(long)]
+    json: bool,
+}
+
+fn main() -> ExitCode {
+    graspcell::cli::init_logging();
+    match run(Args::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: Args) -> anyhow::Result<()> {
+    let mut config = SimConfig {
+        cycle_s: args.cycle_ms / 1000.0,
+        tracking_time_constant_s: args.tracking_time_constant_s,
+        ..SimConfig::default()
+    };
+    if let Some(text) = &args.initial_joints {
+        let q = graspcell::geometry::parse_numbers(text, JOINTS, "--initial-joints")?;
+        config.initial_joints_rad.copy_from_slice(&q);
+    }
+    if let Some(seconds) = args.seconds {
+        anyhow::ensure!(
+            seconds.is_finite() && seconds > 0.0,
+            "--seconds {seconds}: must be a finite number > 0"
+        );
+    }
+    let sim = Mutex::new(FriSimulator::new(config)?);
+    let socket = UdpSocket::bind(args.bind).with_context(|| format!("bind {}", args.bind))?;
+    tracing::info!(
+        "cell-sim-arm: robot at {} sending to {} every {} ms",
+        socket.local_addr()?,
+        args.pc_addr,
+        args.cycle_ms
+    );
+    let clock = SystemClock::new();
+    let until = args.seconds.map(Duration::from_secs_f64);
+    run_udp(
+        &sim,
+        &socket,
+        args.pc_addr,
+        &clock,
+        &AtomicBool::new(false),
+        until,
+    )?;
+    let summary = sim.lock().unwrap_or_else(|e| e.into_inner()).summary();
+    graspcell::cli::emit(args.json, &summary, |s| {
+        format!(
+            "state {:?}, quality {:?}, {} measurements, {} answered in time, {} missed{}\n",
+            s.state,
+            s.quality,
+            s.counters.measurements_sent,
+            s.counters.answers_in_time,
+            s.counters.misses,
+            s.drop_reason
+                .map(|r| format!(", dropped to monitor: {r}"))
+                .unwrap_or_default()
+        )
+    })
+}
