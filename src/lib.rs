@@ -8,8 +8,11 @@
 //! for the processes and data flow; each module below owns one concept.
 
 pub mod cli;
+pub mod clock;
 pub mod cloud;
 pub mod config;
 pub mod geometry;
+pub mod hw;
 pub mod mesh;
 pub mod robot;
+pub mod sim;

@@ -1,0 +1,3 @@
+//! The simulated world: device emulators that stand in for the hardware.
+
+pub mod puck;
