@@ -55,9 +55,22 @@ impl Clock for SystemClock {
 ///
 /// Clones share one time. Because `sleep` returns immediately after advancing, it
 /// models one sleeping thread (the one under test); other threads should only read.
-#[derive(Debug, Clone, Default)]
+/// A settle hook ([`ManualClock::with_settle`]) lets `sleep` first wait until
+/// simulated devices on other threads have handled what was sent to them, so they
+/// see the time at which it was sent.
+#[derive(Clone, Default)]
 pub struct ManualClock {
     now: Arc<Mutex<Duration>>,
+    settle: Option<Arc<dyn Fn() + Send + Sync>>,
+}
+
+impl std::fmt::Debug for ManualClock {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ManualClock")
+            .field("now", &self.now())
+            .field("settle", &self.settle.is_some())
+            .finish()
+    }
 }
 
 impl ManualClock {
@@ -70,6 +83,15 @@ impl ManualClock {
     pub fn starting_at(start: Duration) -> ManualClock {
         ManualClock {
             now: Arc::new(Mutex::new(start)),
+            settle: None,
+        }
+    }
+
+    /// The same clock (shared time) whose `sleep` first calls `settle`.
+    pub fn with_settle(&self, settle: impl Fn() + Send + Sync + 'static) -> ManualClock {
+        ManualClock {
+            now: Arc::clone(&self.now),
+            settle: Some(Arc::new(settle)),
         }
     }
 
@@ -86,6 +108,9 @@ impl Clock for ManualClock {
     }
 
     fn sleep(&self, duration: Duration) {
+        if let Some(settle) = &self.settle {
+            settle();
+        }
         self.advance(duration);
     }
 }
@@ -113,6 +138,23 @@ mod tests {
         other.advance(Duration::from_millis(750));
         assert_eq!(other.now(), Duration::from_secs(6));
         assert_eq!(clock.now(), Duration::from_secs(6));
+    }
+
+    #[test]
+    fn settle_hook_runs_before_sleep_advances() {
+        let clock = ManualClock::new();
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let log = Arc::clone(&seen);
+        let observer = clock.clone();
+        let settling = clock.with_settle(move || log.lock().unwrap().push(observer.now()));
+        settling.sleep(Duration::from_secs(1));
+        settling.sleep(Duration::from_secs(1));
+        settling.advance(Duration::from_secs(1));
+        assert_eq!(
+            *seen.lock().unwrap(),
+            [Duration::ZERO, Duration::from_secs(1)]
+        );
+        assert_eq!(clock.now(), Duration::from_secs(3));
     }
 
     #[test]

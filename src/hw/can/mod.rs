@@ -23,7 +23,9 @@ pub use candump::{candump_line, CandumpBus};
 pub use frame::{CanFrame, MAX_DATA_LEN, MAX_STANDARD_ID};
 pub use socketcan_bus::SocketCanBus;
 pub use unix_bus::{hub_socket_path, Hub, UnixBus};
-pub use virtual_bus::{Corruption, FaultConfig, FaultCounts, VirtualBus, VirtualEndpoint};
+pub use virtual_bus::{
+    Corruption, FaultConfig, FaultCounts, IdleProbe, VirtualBus, VirtualEndpoint,
+};
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;

@@ -9,7 +9,7 @@
 use super::{BusState, CanBus, CanError, CanFrame};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 use std::ops::RangeInclusive;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -105,6 +105,8 @@ struct Inner {
     rng: ChaCha8Rng,
     counts: FaultCounts,
     bus_off: bool,
+    /// Endpoints blocked in `recv` right now.
+    waiting: HashSet<u64>,
 }
 
 impl VirtualBus {
@@ -120,6 +122,7 @@ impl VirtualBus {
                     rng: ChaCha8Rng::seed_from_u64(0),
                     counts: FaultCounts::default(),
                     bus_off: false,
+                    waiting: HashSet::new(),
                 }),
                 arrived: Condvar::new(),
             }),
@@ -258,9 +261,9 @@ impl CanBus for VirtualEndpoint {
     fn recv(&mut self, timeout: Duration) -> Result<Option<CanFrame>, CanError> {
         let deadline = Instant::now() + timeout;
         let mut inner = self.shared.lock();
-        loop {
+        let result = loop {
             if inner.bus_off {
-                return Err(self.bus_off());
+                break Err(self.bus_off());
             }
             let now = Instant::now();
             let head = inner.queues.get(&self.id).and_then(|q| q.front().copied());
@@ -269,13 +272,17 @@ impl CanBus for VirtualEndpoint {
                     if let Some(queue) = inner.queues.get_mut(&self.id) {
                         queue.pop_front();
                     }
-                    return Ok(Some(frame));
+                    break Ok(Some(frame));
                 }
                 Some((at, _)) => at.min(deadline),
                 None => deadline,
             };
             if now >= deadline {
-                return Ok(None);
+                break Ok(None);
+            }
+            if inner.waiting.insert(self.id) {
+                // An idle probe may be waiting for this.
+                self.shared.arrived.notify_all();
             }
             inner = self
                 .shared
@@ -283,7 +290,9 @@ impl CanBus for VirtualEndpoint {
                 .wait_timeout(inner, wake_at.saturating_duration_since(now))
                 .unwrap_or_else(|e| e.into_inner())
                 .0;
-        }
+        };
+        inner.waiting.remove(&self.id);
+        result
     }
 
     fn state(&self) -> BusState {
@@ -299,9 +308,60 @@ impl CanBus for VirtualEndpoint {
     }
 }
 
+impl VirtualEndpoint {
+    /// A handle that tells when this endpoint's owner has handled everything sent
+    /// to it; see [`IdleProbe`].
+    pub fn idle_probe(&self) -> IdleProbe {
+        IdleProbe {
+            shared: Arc::clone(&self.shared),
+            id: self.id,
+        }
+    }
+}
+
 impl Drop for VirtualEndpoint {
     fn drop(&mut self) {
         self.shared.lock().queues.remove(&self.id);
+        self.shared.arrived.notify_all();
+    }
+}
+
+/// Watches one endpoint whose owner serves it in a receive loop (an emulator):
+/// the owner is idle when it is blocked in `recv` with nothing queued, so it has
+/// handled every frame sent to it so far.
+///
+/// Tests pair it with [`crate::clock::ManualClock::with_settle`], so virtual time
+/// advances only after the emulator has seen what the driver sent.
+#[derive(Clone)]
+pub struct IdleProbe {
+    shared: Arc<Shared>,
+    id: u64,
+}
+
+impl IdleProbe {
+    /// Waits until the endpoint is idle (or gone); false if `timeout` passed first.
+    pub fn wait_idle(&self, timeout: Duration) -> bool {
+        let deadline = Instant::now() + timeout;
+        let mut inner = self.shared.lock();
+        loop {
+            let idle = match inner.queues.get(&self.id) {
+                None => true,
+                Some(queue) => queue.is_empty() && inner.waiting.contains(&self.id),
+            };
+            if idle {
+                return true;
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return false;
+            }
+            inner = self
+                .shared
+                .arrived
+                .wait_timeout(inner, deadline - now)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
     }
 }
 
@@ -421,6 +481,31 @@ mod tests {
         bus.set_bus_off(false);
         assert_eq!(a.state(), BusState::ErrorActive);
         a.send(&frame(1, &[])).unwrap();
+    }
+
+    #[test]
+    fn idle_probe_waits_until_the_server_has_handled_its_frames() {
+        let bus = VirtualBus::new("idle");
+        let mut client = bus.endpoint();
+        let mut server = bus.endpoint();
+        let probe = server.idle_probe();
+        // Not yet serving: not idle.
+        assert!(!probe.wait_idle(Duration::from_millis(10)));
+        let handled = Arc::new(Mutex::new(Vec::new()));
+        let log = Arc::clone(&handled);
+        let thread = std::thread::spawn(move || {
+            while let Some(f) = server.recv(Duration::from_millis(500)).unwrap() {
+                log.lock().unwrap().push(f.id());
+            }
+        });
+        for id in 1..=50 {
+            client.send(&frame(id, &[])).unwrap();
+            assert!(probe.wait_idle(Duration::from_secs(10)));
+            assert_eq!(handled.lock().unwrap().len(), usize::from(id));
+        }
+        thread.join().unwrap();
+        // Gone counts as idle.
+        assert!(probe.wait_idle(Duration::ZERO));
     }
 
     #[test]
