@@ -544,10 +544,11 @@ impl EmulatedPuck {
         };
         if property == Property::Stat {
             match value {
-                status::READY if self.prop(Property::Stat) == status::RESET => {
-                    if self.booting_until.is_none() {
-                        self.booting_until = Some(now + boot);
-                    }
+                status::READY
+                    if self.prop(Property::Stat) == status::RESET
+                        && self.booting_until.is_none() =>
+                {
+                    self.booting_until = Some(now + boot);
                 }
                 status::RESET => {
                     self.booting_until = None;

@@ -303,7 +303,7 @@ impl Expected {
 
 /// How a received frame relates to the reply being waited for.
 enum Verdict {
-    Answer(i32),
+    Answer(Expected, i32),
     Late,
     Unrelated,
 }
@@ -528,20 +528,23 @@ impl<B: CanBus> Hand<B> {
         self.watch(OP, motions, deadline, timeout)
     }
 
-    /// Joint positions (rad), from each puck's P.
+    /// Joint positions (rad), from one get of P to the hand group (22-bit position
+    /// replies).
     pub fn positions(&mut self, timeout: Duration) -> Result<HandPositions, HandError> {
-        const OP: &str = "positions";
-        let deadline = self.deadline(timeout);
-        let info = self.require_identified(OP)?;
-        let mut rad = [0.0; 4];
-        for puck in Puck::ALL {
-            let counts = self.get(puck, Property::P, deadline, OP, timeout)?;
-            rad[puck.index()] = f64::from(counts) / info[puck.index()].counts_per_rad;
-        }
+        let info = self.require_identified("positions")?;
+        let counts = self.position_counts_all(timeout)?;
+        let rad = |puck: Puck| f64::from(counts[puck.index()]) / info[puck.index()].counts_per_rad;
         Ok(HandPositions {
-            fingers_rad: [rad[0], rad[1], rad[2]],
-            spread_rad: rad[3],
+            fingers_rad: [rad(Puck::F1), rad(Puck::F2), rad(Puck::F3)],
+            spread_rad: rad(Puck::Spread),
         })
+    }
+
+    /// P (counts) of F1, F2, F3 and the spread, from one get of P to the hand group
+    /// 0x405, answered by 22-bit position replies on group 3.
+    pub fn position_counts_all(&mut self, timeout: Duration) -> Result<[i32; 4], HandError> {
+        let deadline = self.deadline(timeout);
+        self.group_positions(deadline, "positions", timeout)
     }
 
     /// One puck's position P (counts): a get of P on the puck's own identifier,
@@ -823,34 +826,93 @@ impl<B: CanBus> Hand<B> {
     ) -> Result<i32, HandError> {
         let expected = Expected { puck, property };
         let request = puck::get_frame(puck::node_id(puck.node()), property);
+        let description = expected.describe();
         for attempt in 1..=self.timing.attempts {
-            if self.clock.now() >= deadline {
-                return Err(HandError::Timeout {
-                    operation: op,
-                    puck,
-                    timeout_s: timeout.as_secs_f64(),
-                });
-            }
+            self.check_deadline(deadline, op, puck, timeout)?;
             self.bus.send(&request)?;
-            if let Some(value) = self.await_reply(expected)? {
+            if let Some((_, value)) = self.await_reply(&[expected], &description)? {
                 return Ok(value);
             }
             tracing::debug!(%puck, %property, attempt, "no reply");
-            if self.late.len() == MAX_LATE {
-                self.late.pop_front();
-            }
-            self.late.push_back(expected);
+            self.remember_late(expected);
         }
         Err(HandError::NoReply {
             puck,
-            request: expected.describe(),
+            request: description,
             attempts: self.timing.attempts,
             reply_timeout_s: self.timing.reply_timeout.as_secs_f64(),
         })
     }
 
-    /// Waits one reply timeout for the answer to `expected`.
-    fn await_reply(&mut self, expected: Expected) -> Result<Option<i32>, HandError> {
+    /// Gets P from all four pucks with one request to the hand group; they answer
+    /// with 22-bit position replies on group 3. A puck whose reply is lost is asked
+    /// on its own.
+    fn group_positions(
+        &mut self,
+        deadline: Duration,
+        op: &'static str,
+        timeout: Duration,
+    ) -> Result<[i32; 4], HandError> {
+        self.check_deadline(deadline, op, Puck::F1, timeout)?;
+        self.bus
+            .send(&puck::get_frame(puck::group_id(group::HAND), Property::P))?;
+        let mut waiting: Vec<Expected> = Puck::ALL
+            .iter()
+            .map(|&puck| Expected {
+                puck,
+                property: Property::P,
+            })
+            .collect();
+        let mut counts = [0; 4];
+        while !waiting.is_empty() {
+            let Some((answer, value)) = self.await_reply(&waiting, "get P from the hand group")?
+            else {
+                break;
+            };
+            counts[answer.puck.index()] = value;
+            waiting.retain(|e| *e != answer);
+        }
+        for missing in waiting {
+            tracing::debug!(puck = %missing.puck, "no position reply to the group get");
+            self.remember_late(missing);
+            counts[missing.puck.index()] =
+                self.get(missing.puck, Property::P, deadline, op, timeout)?;
+        }
+        Ok(counts)
+    }
+
+    fn check_deadline(
+        &self,
+        deadline: Duration,
+        operation: &'static str,
+        puck: Puck,
+        timeout: Duration,
+    ) -> Result<(), HandError> {
+        if self.clock.now() >= deadline {
+            return Err(HandError::Timeout {
+                operation,
+                puck,
+                timeout_s: timeout.as_secs_f64(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Records an exchange that timed out, so its reply, if it comes late, is
+    /// recognised and dropped.
+    fn remember_late(&mut self, expected: Expected) {
+        if self.late.len() == MAX_LATE {
+            self.late.pop_front();
+        }
+        self.late.push_back(expected);
+    }
+
+    /// Waits one reply timeout for an answer to one of `expected`.
+    fn await_reply(
+        &mut self,
+        expected: &[Expected],
+        request: &str,
+    ) -> Result<Option<(Expected, i32)>, HandError> {
         let started = self.clock.now();
         let mut ignored = 0;
         loop {
@@ -862,8 +924,8 @@ impl<B: CanBus> Hand<B> {
             let Some(frame) = self.bus.recv(remaining)? else {
                 return Ok(None);
             };
-            match self.judge(expected, &frame)? {
-                Verdict::Answer(value) => return Ok(Some(value)),
+            match self.judge(expected, request, &frame)? {
+                Verdict::Answer(answer, value) => return Ok(Some((answer, value))),
                 Verdict::Late => {
                     tracing::debug!(%frame, "late reply to an exchange that timed out; dropped")
                 }
@@ -877,8 +939,13 @@ impl<B: CanBus> Hand<B> {
         }
     }
 
-    /// Classifies a frame received while waiting for `expected`.
-    fn judge(&mut self, expected: Expected, frame: &CanFrame) -> Result<Verdict, HandError> {
+    /// Classifies a frame received while waiting for one of `expected`.
+    fn judge(
+        &mut self,
+        expected: &[Expected],
+        request: &str,
+        frame: &CanFrame,
+    ) -> Result<Verdict, HandError> {
         let address = split_id(frame.id());
         let Some(source) = Puck::from_node(address.source) else {
             return Ok(Verdict::Unrelated);
@@ -888,7 +955,7 @@ impl<B: CanBus> Hand<B> {
         }
         let garbled = |problem| HandError::Garbled {
             puck: source,
-            request: expected.describe(),
+            request: request.to_string(),
             frame: *frame,
             problem,
         };
@@ -905,7 +972,7 @@ impl<B: CanBus> Hand<B> {
         };
         let unexpected = || HandError::Unexpected {
             puck: source,
-            request: expected.describe(),
+            request: request.to_string(),
             frame: *frame,
         };
         let Some((property, value)) = answered else {
@@ -915,10 +982,10 @@ impl<B: CanBus> Hand<B> {
             puck: source,
             property,
         };
-        if answer == expected {
+        if expected.contains(&answer) {
             // Possibly the late answer of an earlier timed-out attempt: same puck and
             // property, at most one reply timeout older.
-            return Ok(Verdict::Answer(value));
+            return Ok(Verdict::Answer(answer, value));
         }
         if let Some(i) = self.late.iter().position(|e| *e == answer) {
             self.late.remove(i);
