@@ -18,7 +18,7 @@ use std::time::Duration;
 
 /// Emulates the four pucks of a Barrett BH8-282 hand on a CAN bus.
 #[derive(Debug, Parser)]
-#[command(name = "cell-sim-hand", version, about)]
+#[command(name = "cell-sim-hand", version)]
 struct Args {
     /// CAN interface: `virtual:NAME` (cross-process virtual bus) or a SocketCAN
     /// interface such as `vcan0`.

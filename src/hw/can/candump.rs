@@ -56,7 +56,7 @@ impl<B: CanBus> CandumpBus<B> {
     ) -> Result<CandumpBus<B>, CanError> {
         let file = File::create(path).map_err(|source| CanError::Candump {
             path: path.to_path_buf(),
-            source,
+            error: source,
         })?;
         Ok(CandumpBus {
             inner,
@@ -75,7 +75,7 @@ impl<B: CanBus> CandumpBus<B> {
         let line = candump_line(self.clock.now(), self.inner.interface(), frame);
         writeln!(self.writer, "{line}").map_err(|source| CanError::Candump {
             path: self.path.clone(),
-            source,
+            error: source,
         })
     }
 }

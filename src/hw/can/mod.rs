@@ -38,6 +38,9 @@ pub const SEND_TIMEOUT: Duration = Duration::from_millis(100);
 pub const VIRTUAL_PREFIX: &str = "virtual:";
 
 /// Errors of the CAN layer; each names the interface (or file) involved.
+///
+/// Operating-system errors are part of the message (field `error`), not a
+/// separate cause, so an error chain prints them once.
 #[derive(Debug, thiserror::Error)]
 pub enum CanError {
     /// An identifier does not fit in 11 bits.
@@ -61,22 +64,22 @@ pub enum CanError {
         problem: String,
     },
     /// The interface could not be opened.
-    #[error("cannot open CAN interface `{interface}`: {source}")]
+    #[error("cannot open CAN interface `{interface}`: {error}")]
     Open {
         /// The interface.
         interface: String,
         /// The operating system's error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// An operating-system error while using an open bus.
-    #[error("CAN interface `{interface}`: {operation} failed: {source}")]
+    #[error("CAN interface `{interface}`: {operation} failed: {error}")]
     Io {
         /// The interface.
         interface: String,
         /// What was being done (`send`, `receive`, ...).
         operation: &'static str,
         /// The operating system's error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The frame could not be queued within [`SEND_TIMEOUT`].
     #[error("CAN interface `{interface}`: send of {frame} timed out after {timeout_s} s")]
@@ -113,12 +116,12 @@ pub enum CanError {
         problem: String,
     },
     /// Writing the candump log failed.
-    #[error("candump log {path}: {source}")]
+    #[error("candump log {path}: {error}")]
     Candump {
         /// The log file.
         path: PathBuf,
         /// The I/O error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 

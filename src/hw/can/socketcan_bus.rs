@@ -25,7 +25,7 @@ impl SocketCanBus {
     pub fn open(interface: &str) -> Result<SocketCanBus, CanError> {
         let open_err = |source| CanError::Open {
             interface: interface.to_string(),
-            source,
+            error: source,
         };
         let socket = CanSocket::open(interface).map_err(open_err)?;
         socket.set_error_filter_accept_all().map_err(open_err)?;
@@ -90,7 +90,7 @@ impl CanBus for SocketCanBus {
             Err(source) => Err(CanError::Io {
                 interface: self.interface.clone(),
                 operation: "send",
-                source,
+                error: source,
             }),
         }
     }
@@ -110,7 +110,7 @@ impl CanBus for SocketCanBus {
                 .map_err(|source| CanError::Io {
                     interface: self.interface.clone(),
                     operation: "set read timeout",
-                    source,
+                    error: source,
                 })?;
             match self.socket.receive() {
                 Ok(socketcan::CanFrame::Data(data)) => match data.id() {
@@ -130,7 +130,7 @@ impl CanBus for SocketCanBus {
                     return Err(CanError::Io {
                         interface: self.interface.clone(),
                         operation: "receive",
-                        source,
+                        error: source,
                     })
                 }
             }
@@ -156,7 +156,7 @@ mod tests {
         let err = SocketCanBus::open("gcnocan9").err().unwrap();
         let text = err.to_string();
         assert!(text.contains("`gcnocan9`"), "{text}");
-        let CanError::Open { source, .. } = &err else {
+        let CanError::Open { error: source, .. } = &err else {
             panic!("not an open error: {text}");
         };
         assert!(source.raw_os_error().is_some(), "{text}");

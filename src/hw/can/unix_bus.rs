@@ -70,7 +70,7 @@ fn prepare_path(name: &str) -> Result<PathBuf, CanError> {
             .create(dir)
             .map_err(|source| CanError::Open {
                 interface: interface.clone(),
-                source,
+                error: source,
             })?;
     }
     Ok(path)
@@ -116,6 +116,38 @@ fn recv_packet(socket: &Socket, buf: &mut [u8; 64], flags: libc::c_int) -> std::
         *dst = unsafe { src.assume_init() };
     }
     Ok(n)
+}
+
+/// An exclusive `flock` on a lock file beside the socket, held while binding.
+struct BindLock(std::fs::File);
+
+impl BindLock {
+    fn acquire(path: &Path) -> std::io::Result<BindLock> {
+        use std::os::fd::AsRawFd;
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(path)?;
+        loop {
+            // SAFETY: flock on a valid open descriptor has no other preconditions.
+            if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX) } == 0 {
+                return Ok(BindLock(file));
+            }
+            let err = std::io::Error::last_os_error();
+            if err.kind() != ErrorKind::Interrupted {
+                return Err(err);
+            }
+        }
+    }
+}
+
+impl Drop for BindLock {
+    fn drop(&mut self) {
+        use std::os::fd::AsRawFd;
+        // SAFETY: as above; closing the file would release the lock anyway.
+        unsafe { libc::flock(self.0.as_raw_fd(), libc::LOCK_UN) };
+    }
 }
 
 /// The hub of one virtual bus: rebroadcasts frames between connected nodes.
@@ -165,8 +197,11 @@ impl Hub {
         let path = prepare_path(name)?;
         let open_err = |source| CanError::Open {
             interface: interface.clone(),
-            source,
+            error: source,
         };
+        // Serialise hub starts (one lock file for the directory), so two starters
+        // cannot both remove a stale file and the second unlink the first's socket.
+        let _lock = BindLock::acquire(&path.with_file_name(".bind.lock")).map_err(open_err)?;
         let listener = new_seqpacket_socket().map_err(open_err)?;
         let address = SockAddr::unix(&path).map_err(open_err)?;
         if let Err(err) = listener.bind(&address) {
@@ -363,7 +398,10 @@ impl UnixBus {
     pub fn connect(name: &str) -> Result<UnixBus, CanError> {
         let interface = interface_of(name);
         Self::try_connect(name).map_err(|e| match e {
-            ConnectError::NoHub(source) => CanError::Open { interface, source },
+            ConnectError::NoHub(source) => CanError::Open {
+                interface,
+                error: source,
+            },
             ConnectError::Other(e) => e,
         })
     }
@@ -382,13 +420,14 @@ impl UnixBus {
             match Hub::start(name, true) {
                 Ok(hub) => hub.detach(),
                 // Another process won the race: connect to its hub.
-                Err(CanError::Open { source, .. }) if source.kind() == ErrorKind::AddrInUse => {}
+                Err(CanError::Open { error: source, .. })
+                    if source.kind() == ErrorKind::AddrInUse => {}
                 Err(e) => return Err(e),
             }
         }
         Err(CanError::Open {
             interface: interface_of(name),
-            source: last.unwrap_or_else(|| ErrorKind::NotConnected.into()),
+            error: last.unwrap_or_else(|| ErrorKind::NotConnected.into()),
         })
     }
 
@@ -398,7 +437,7 @@ impl UnixBus {
         let other = |source| {
             ConnectError::Other(CanError::Open {
                 interface: interface.clone(),
-                source,
+                error: source,
             })
         };
         let socket = new_seqpacket_socket().map_err(other)?;
@@ -478,7 +517,7 @@ impl CanBus for UnixBus {
                 Err(source) => Err(CanError::Io {
                     interface: self.interface.clone(),
                     operation: "send",
-                    source,
+                    error: source,
                 }),
             };
         }
@@ -520,7 +559,7 @@ impl CanBus for UnixBus {
                 Err(source) => Err(CanError::Io {
                     interface: self.interface.clone(),
                     operation: "receive",
-                    source,
+                    error: source,
                 }),
             };
         }

@@ -151,8 +151,8 @@ pub struct MotionOutcome {
 /// Errors of the hand driver; each names the puck and carries the numbers.
 #[derive(Debug, thiserror::Error)]
 pub enum HandError {
-    /// The bus failed.
-    #[error("hand bus: {0}")]
+    /// The bus failed (the message names the interface).
+    #[error(transparent)]
     Bus(#[from] CanError),
     /// A puck never answered.
     #[error("{puck} did not answer {request}: {attempts} attempts of {reply_timeout_s} s")]
@@ -992,5 +992,50 @@ impl<B: CanBus> Hand<B> {
             return Ok(Verdict::Late);
         }
         Err(unexpected())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn timing_takes_the_reply_timeout_from_the_cell_config() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(crate::config::DEFAULT_CONFIG_PATH);
+        let config = crate::config::CellConfig::load(&path).unwrap();
+        let timing = HandTiming::from_config(&config.can);
+        assert_eq!(
+            timing.reply_timeout.as_secs_f64(),
+            config.can.reply_timeout_s
+        );
+        assert_eq!(timing.attempts, HandTiming::default().attempts);
+    }
+
+    #[test]
+    fn errors_name_the_puck_and_the_numbers() {
+        let err = HandError::NoReply {
+            puck: Puck::F3,
+            request: "get STAT".into(),
+            attempts: 5,
+            reply_timeout_s: 0.05,
+        };
+        assert_eq!(
+            err.to_string(),
+            "F3 (node 13) did not answer get STAT: 5 attempts of 0.05 s"
+        );
+        let err = HandError::Garbled {
+            puck: Puck::F1,
+            request: "get ROLE".into(),
+            frame: CanFrame::new(0x566, &[0x81, 0x00]).unwrap(),
+            problem: PuckFrameError::Length {
+                len: 2,
+                expected: "4 or 6",
+            },
+        };
+        assert_eq!(
+            err.to_string(),
+            "F1 (node 11): garbled reply 566#8100 to get ROLE: 2 data bytes where 4 or 6 are expected"
+        );
     }
 }
