@@ -4,6 +4,7 @@
 //! `--json` and human-readable text otherwise; logs go to stderr.
 
 pub mod bench;
+mod can;
 mod output;
 mod robot;
 

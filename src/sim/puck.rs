@@ -807,6 +807,34 @@ mod tests {
     }
 
     #[test]
+    fn incremental_default_and_streamed_moves_go_where_specified() {
+        let (mut emu, clock) = emulator(HandEmulatorConfig::default());
+        boot_and_home(&mut emu, &clock);
+        let mut step = |frame: CanFrame| {
+            emu.handle(&frame);
+            clock.advance(Duration::from_secs(3));
+            emu.position_counts(Puck::F2).unwrap()
+        };
+        step(set_frame(12, Property::Ds, 1000));
+        assert_eq!(step(set_frame(12, Property::Cmd, command::IC)), 1000);
+        assert_eq!(step(set_frame(12, Property::Cmd, command::IC)), 2000);
+        assert_eq!(step(set_frame(12, Property::Cmd, command::IO)), 1000);
+        step(set_frame(12, Property::Dp, 5000));
+        assert_eq!(step(set_frame(12, Property::Cmd, command::M)), 5000);
+        assert_eq!(step(set_frame(12, Property::M, 7000)), 7000);
+        step(set_frame(12, Property::E, 9000));
+        assert_eq!(step(set_frame(12, Property::Mode, mode::TRAPEZOIDAL)), 9000);
+        step(set_frame(12, Property::Mode, mode::PID));
+        assert_eq!(step(set_frame(12, Property::P, 8000)), 8000);
+        assert_eq!(emu.property(Puck::F2, Property::Mode), Some(mode::PID));
+        // IO stops at the open target. (DS is a 16-bit property: at most 32767.)
+        emu.handle(&set_frame(12, Property::Ds, 30_000));
+        emu.handle(&set_frame(12, Property::Cmd, command::IO));
+        clock.advance(Duration::from_secs(3));
+        assert_eq!(emu.position_counts(Puck::F2), Some(0));
+    }
+
+    #[test]
     fn motion_before_hi_is_ignored_and_garbage_is_counted() {
         let (mut emu, clock) = emulator(HandEmulatorConfig::default());
         for puck in Puck::ALL {
