@@ -423,6 +423,41 @@ fn fingers_and_spread_move_to_positions() {
 }
 
 #[test]
+fn wrong_role_and_old_firmware_are_refused() {
+    let bus = VirtualBus::new(&unique("role"));
+    let mut rig = Rig::on_virtual_bus(&bus, HandEmulatorConfig::default(), HandTiming::default());
+    rig.hand.wake(CALL).unwrap();
+    // F2 claims role 4 (not a hand puck).
+    bus.endpoint()
+        .send(&frame(12, &[0x80 | 1, 0x00, 4, 0, 0, 0]))
+        .unwrap();
+    let err = rig.hand.identify(CALL).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            HandError::WrongRole {
+                puck: Puck::F2,
+                role: 4
+            }
+        ),
+        "{err}"
+    );
+
+    let bus = VirtualBus::new(&unique("firmware"));
+    let mut rig = Rig::on_virtual_bus(
+        &bus,
+        HandEmulatorConfig {
+            firmware_version: 131,
+            ..HandEmulatorConfig::default()
+        },
+        HandTiming::default(),
+    );
+    rig.hand.wake(CALL).unwrap();
+    let err = rig.hand.identify(CALL).unwrap_err().to_string();
+    assert!(err.contains("F1 (node 11)") && err.contains("131"), "{err}");
+}
+
+#[test]
 fn motion_before_initialise_is_refused() {
     let bus = VirtualBus::new(&unique("order"));
     let mut rig = Rig::on_virtual_bus(&bus, HandEmulatorConfig::default(), HandTiming::default());
