@@ -2,7 +2,7 @@
 //! emulator on each bus backend.
 
 use crate::clock::SystemClock;
-use crate::hw::can::{CanBus, UnixBus, VirtualBus};
+use crate::hw::can::{CanBus, Hub, UnixBus, VirtualBus};
 use crate::hw::hand::puck::Property;
 use crate::hw::hand::{Hand, HandTiming, Puck};
 use crate::sim::puck::{HandEmulator, HandEmulatorConfig};
@@ -58,13 +58,16 @@ pub fn bench(args: CanBenchArgs) -> anyhow::Result<ExitCode> {
         &progress,
     )?;
     let name = format!("bench-{}", std::process::id());
+    // A hub of our own: dropping it removes its socket before the process exits.
+    let hub = Hub::bind(&name)?;
     progress.set_message("cross-process");
     let mut cross_process = measure(
-        Box::new(UnixBus::open(&name)?),
-        Box::new(UnixBus::open(&name)?),
+        Box::new(UnixBus::connect(&name)?),
+        Box::new(UnixBus::connect(&name)?),
         args.round_trips,
         &progress,
     )?;
+    drop(hub);
     progress.finish_and_clear();
     let base = super::bench::median(&mut in_process);
     let figures = |backend, samples: &mut Vec<f64>| BackendFigures {
