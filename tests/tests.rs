@@ -6,3 +6,4 @@ mod calib;
 mod camera;
 mod objects;
 mod fri;
+mod can;

@@ -19,6 +19,8 @@ pub enum BenchCommand {
     Render(RenderBenchArgs),
     /// FRI: the arm driver against the robot simulator over loopback UDP; answer latency and missed cycles.
     Fri(super::fri::FriBenchArgs),
+    /// CAN: hand driver round trips against the puck emulator, per bus backend.
+    Can(super::can::CanBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -73,6 +75,7 @@ pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Calib(args) => super::calibrate::bench_calib(args),
         BenchCommand::Render(args) => super::camera::bench_render(config, args),
         BenchCommand::Fri(args) => super::fri::bench_fri(config, args),
+        BenchCommand::Can(args) => super::can::bench(args),
     }
 }
 

@@ -8,6 +8,7 @@ mod calibrate;
 mod camera;
 mod objects;
 mod fri;
+mod can;
 mod output;
 mod robot;
 mod trial;

@@ -1,4 +1,10 @@
-//! Device drivers behind traits: every blocking call takes a timeout, and each
+//! Device drivers behind traits. Every blocking call takes a timeout, and each
 //! driver's documentation says what "stop" does to the hardware.
+//!
+//! - [`can`]: the CAN bus trait with SocketCAN, in-process and cross-process backends.
+//! - [`hand`]: the Barrett BH8-282 driver over any CAN bus.
+//! - [`fri`]: the KUKA LBR4+ over FRI 1.x (UDP).
 
+pub mod can;
 pub mod fri;
+pub mod hand;

@@ -4,4 +4,5 @@
 
 pub mod camera;
 pub mod fri;
+pub mod puck;
 pub mod scene;

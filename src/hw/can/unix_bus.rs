@@ -1,0 +1,657 @@
+//! A cross-process virtual CAN bus without kernel CAN.
+//!
+//! A [`Hub`] listens on an AF_UNIX `SOCK_SEQPACKET` socket at
+//! [`hub_socket_path`]`(NAME)` (under `$XDG_RUNTIME_DIR/graspcell-can/`, else
+//! `/tmp/graspcell-can-UID/`). Every node connects a [`UnixBus`]; the hub sends
+//! each connection a greeting packet, then rebroadcasts every frame a node sends to
+//! all other nodes: no loopback, as on CAN without `CAN_RAW_RECV_OWN_MSGS`.
+//!
+//! One packet carries one frame, encoded like Linux's `struct can_frame` (16
+//! bytes: identifier as little-endian u32, DLC, three padding bytes, eight data
+//! bytes). The hub drops malformed packets instead of forwarding them, and a node
+//! whose receive queue is full loses the frame (like a CAN controller's overrun)
+//! instead of stalling the bus.
+//!
+//! A socket file whose hub died is stale: binding a new hub finds nobody
+//! listening, removes it and binds afresh.
+
+use super::{BusState, CanBus, CanError, CanFrame, SEND_TIMEOUT, VIRTUAL_PREFIX};
+use socket2::{Domain, SockAddr, Socket, Type};
+use std::io::ErrorKind;
+use std::mem::MaybeUninit;
+use std::os::unix::fs::{DirBuilderExt, MetadataExt};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Bytes of one encoded frame (Linux `struct can_frame`).
+const PACKET_LEN: usize = 16;
+/// The hub's greeting, sent once on every new connection (not 16 bytes long).
+const GREETING: &[u8] = b"graspcell-can-hub/1";
+/// How long a node waits for the greeting after connecting.
+const GREETING_TIMEOUT: Duration = Duration::from_secs(2);
+/// Longest path an AF_UNIX address holds (with its terminating NUL).
+const MAX_SOCKET_PATH: usize = 107;
+
+/// The socket path of the hub of virtual bus `name`.
+pub fn hub_socket_path(name: &str) -> PathBuf {
+    let dir = match std::env::var_os("XDG_RUNTIME_DIR") {
+        Some(dir) if !dir.is_empty() => PathBuf::from(dir).join("graspcell-can"),
+        // SAFETY: getuid has no preconditions and cannot fail.
+        _ => std::env::temp_dir().join(format!("graspcell-can-{}", unsafe { libc::getuid() })),
+    };
+    dir.join(format!("{name}.sock"))
+}
+
+fn interface_of(name: &str) -> String {
+    format!("{VIRTUAL_PREFIX}{name}")
+}
+
+/// Checks the name and returns the socket path, creating its directory (mode 0700).
+fn prepare_path(name: &str) -> Result<PathBuf, CanError> {
+    let interface = interface_of(name);
+    super::parse_interface(&interface)?;
+    let path = hub_socket_path(name);
+    if path.as_os_str().len() > MAX_SOCKET_PATH {
+        return Err(CanError::BadInterface {
+            interface,
+            problem: format!(
+                "hub socket path {} exceeds {MAX_SOCKET_PATH} bytes",
+                path.display()
+            ),
+        });
+    }
+    if let Some(dir) = path.parent() {
+        std::fs::DirBuilder::new()
+            .recursive(true)
+            .mode(0o700)
+            .create(dir)
+            .map_err(|source| CanError::Open {
+                interface: interface.clone(),
+                error: source,
+            })?;
+    }
+    Ok(path)
+}
+
+/// Encodes a frame as one packet (Linux `struct can_frame`, little-endian id).
+fn encode_packet(frame: &CanFrame) -> [u8; PACKET_LEN] {
+    let mut packet = [0; PACKET_LEN];
+    packet[..4].copy_from_slice(&u32::from(frame.id()).to_le_bytes());
+    packet[4] = frame.len() as u8;
+    packet[8..8 + frame.len()].copy_from_slice(frame.data());
+    packet
+}
+
+/// Decodes one packet; the error says what is wrong with it.
+fn decode_packet(packet: &[u8]) -> Result<CanFrame, String> {
+    if packet.len() != PACKET_LEN {
+        return Err(format!("expected {PACKET_LEN} bytes"));
+    }
+    let raw_id = u32::from_le_bytes([packet[0], packet[1], packet[2], packet[3]]);
+    if raw_id > 0x7FF {
+        return Err(format!(
+            "identifier word {raw_id:#010x} is not a standard data frame"
+        ));
+    }
+    let len = usize::from(packet[4]);
+    if len > 8 {
+        return Err(format!("DLC {len} exceeds 8"));
+    }
+    CanFrame::new(raw_id as u16, &packet[8..8 + len]).map_err(|e| e.to_string())
+}
+
+fn new_seqpacket_socket() -> std::io::Result<Socket> {
+    Socket::new(Domain::UNIX, Type::SEQPACKET, None)
+}
+
+/// Receives one packet into `buf`; returns its length (0 at end of stream).
+fn recv_packet(socket: &Socket, buf: &mut [u8; 64], flags: libc::c_int) -> std::io::Result<usize> {
+    let mut raw = [MaybeUninit::<u8>::uninit(); 64];
+    let n = socket.recv_with_flags(&mut raw, flags)?;
+    for (dst, src) in buf.iter_mut().zip(&raw[..n]) {
+        // SAFETY: recv initialised the first n bytes.
+        *dst = unsafe { src.assume_init() };
+    }
+    Ok(n)
+}
+
+/// An exclusive `flock` on a lock file beside the socket, held while binding.
+struct BindLock(std::fs::File);
+
+impl BindLock {
+    fn acquire(path: &Path) -> std::io::Result<BindLock> {
+        use std::os::fd::AsRawFd;
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(path)?;
+        loop {
+            // SAFETY: flock on a valid open descriptor has no other preconditions.
+            if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX) } == 0 {
+                return Ok(BindLock(file));
+            }
+            let err = std::io::Error::last_os_error();
+            if err.kind() != ErrorKind::Interrupted {
+                return Err(err);
+            }
+        }
+    }
+}
+
+impl Drop for BindLock {
+    fn drop(&mut self) {
+        use std::os::fd::AsRawFd;
+        // SAFETY: as above; closing the file would release the lock anyway.
+        unsafe { libc::flock(self.0.as_raw_fd(), libc::LOCK_UN) };
+    }
+}
+
+/// The hub of one virtual bus: rebroadcasts frames between connected nodes.
+///
+/// Dropping it disconnects every node and removes its socket file.
+pub struct Hub {
+    shared: Arc<HubShared>,
+    accept_thread: Option<JoinHandle<()>>,
+}
+
+struct HubShared {
+    interface: String,
+    path: PathBuf,
+    identity: (u64, u64),
+    listener: Socket,
+    stop: AtomicBool,
+    exit_when_empty: bool,
+    clients: Mutex<Clients>,
+}
+
+#[derive(Default)]
+struct Clients {
+    next_id: u64,
+    list: Vec<(u64, Arc<Socket>)>,
+}
+
+impl Hub {
+    /// Starts the hub of virtual bus `name` on background threads, cleaning a stale
+    /// socket file. Fails with [`CanError::Open`] (`AddrInUse`) when a live hub
+    /// already serves the bus.
+    pub fn bind(name: &str) -> Result<Hub, CanError> {
+        Hub::start(name, false)
+    }
+
+    /// The socket path nodes connect to.
+    pub fn path(&self) -> &Path {
+        &self.shared.path
+    }
+
+    /// Number of nodes connected.
+    pub fn clients(&self) -> usize {
+        self.shared.lock_clients().list.len()
+    }
+
+    fn start(name: &str, exit_when_empty: bool) -> Result<Hub, CanError> {
+        let interface = interface_of(name);
+        let path = prepare_path(name)?;
+        let open_err = |source| CanError::Open {
+            interface: interface.clone(),
+            error: source,
+        };
+        // Serialise hub starts (one lock file for the directory), so two starters
+        // cannot both remove a stale file and the second unlink the first's socket.
+        let _lock = BindLock::acquire(&path.with_file_name(".bind.lock")).map_err(open_err)?;
+        let listener = new_seqpacket_socket().map_err(open_err)?;
+        let address = SockAddr::unix(&path).map_err(open_err)?;
+        if let Err(err) = listener.bind(&address) {
+            if err.kind() != ErrorKind::AddrInUse {
+                return Err(open_err(err));
+            }
+            // Somebody's file: a live hub answers, a dead one's file refuses.
+            let probe = new_seqpacket_socket().map_err(open_err)?;
+            match probe.connect(&address) {
+                Ok(()) => {
+                    return Err(open_err(std::io::Error::new(
+                        ErrorKind::AddrInUse,
+                        format!("a hub already serves {}", path.display()),
+                    )))
+                }
+                Err(e) if e.kind() == ErrorKind::ConnectionRefused => {
+                    tracing::info!(path = %path.display(), "removing stale CAN hub socket");
+                    std::fs::remove_file(&path).map_err(open_err)?;
+                    listener.bind(&address).map_err(open_err)?;
+                }
+                Err(e) => return Err(open_err(e)),
+            }
+        }
+        let meta = std::fs::metadata(&path).map_err(open_err)?;
+        listener.listen(16).map_err(open_err)?;
+        // A backstop so the accept loop sees `stop` even if shutdown does not wake it.
+        listener
+            .set_read_timeout(Some(Duration::from_millis(200)))
+            .map_err(open_err)?;
+        let shared = Arc::new(HubShared {
+            interface: interface.clone(),
+            path,
+            identity: (meta.dev(), meta.ino()),
+            listener,
+            stop: AtomicBool::new(false),
+            exit_when_empty,
+            clients: Mutex::new(Clients::default()),
+        });
+        tracing::debug!(path = %shared.path.display(), "CAN hub listening");
+        let for_thread = Arc::clone(&shared);
+        let accept_thread = std::thread::Builder::new()
+            .name(format!("can-hub-{name}"))
+            .spawn(move || for_thread.accept_loop())
+            .map_err(open_err)?;
+        Ok(Hub {
+            shared,
+            accept_thread: Some(accept_thread),
+        })
+    }
+
+    /// Lets the hub run on, serving until its last node disconnects.
+    fn detach(mut self) {
+        self.accept_thread.take();
+    }
+}
+
+impl Drop for Hub {
+    fn drop(&mut self) {
+        if let Some(thread) = self.accept_thread.take() {
+            self.shared.shut_down();
+            let _ = thread.join();
+        }
+    }
+}
+
+impl HubShared {
+    fn lock_clients(&self) -> MutexGuard<'_, Clients> {
+        self.clients.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn accept_loop(self: Arc<Self>) {
+        while !self.stop.load(Ordering::SeqCst) {
+            let socket = match self.listener.accept() {
+                Ok((socket, _)) => Arc::new(socket),
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+                    ) =>
+                {
+                    continue
+                }
+                Err(e) => {
+                    if !self.stop.load(Ordering::SeqCst) {
+                        tracing::error!(hub = %self.interface, "accept failed: {e}");
+                    }
+                    break;
+                }
+            };
+            let id = {
+                let mut clients = self.lock_clients();
+                if self.stop.load(Ordering::SeqCst) {
+                    break;
+                }
+                if let Err(e) = socket.send_with_flags(GREETING, libc::MSG_NOSIGNAL) {
+                    tracing::warn!(hub = %self.interface, "greeting a node failed: {e}");
+                    continue;
+                }
+                let id = clients.next_id;
+                clients.next_id += 1;
+                clients.list.push((id, Arc::clone(&socket)));
+                id
+            };
+            let hub = Arc::clone(&self);
+            let spawned = std::thread::Builder::new()
+                .name(format!("can-hub-node-{id}"))
+                .spawn(move || hub.serve(id, socket));
+            if let Err(e) = spawned {
+                tracing::error!(hub = %self.interface, "cannot start a node thread: {e}");
+                self.remove_client(id);
+            }
+        }
+        tracing::debug!(hub = %self.interface, "CAN hub stopped");
+    }
+
+    /// Forwards every frame node `id` sends to the other nodes until it leaves.
+    fn serve(&self, id: u64, socket: Arc<Socket>) {
+        let mut buf = [0u8; 64];
+        loop {
+            let n = match recv_packet(&socket, &mut buf, 0) {
+                Ok(0) => break,
+                Ok(n) => n,
+                Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+                Err(_) => break,
+            };
+            if let Err(problem) = decode_packet(&buf[..n]) {
+                tracing::warn!(hub = %self.interface, node = id, len = n, "dropped malformed packet: {problem}");
+                continue;
+            }
+            let clients = self.lock_clients();
+            for (other, peer) in &clients.list {
+                if *other == id {
+                    continue;
+                }
+                match peer.send_with_flags(&buf[..n], libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL) {
+                    Ok(_) => {}
+                    Err(e) if e.kind() == ErrorKind::WouldBlock => {
+                        tracing::warn!(hub = %self.interface, node = other, "receive queue full: frame lost");
+                    }
+                    // A departed node: its own thread removes it.
+                    Err(_) => {}
+                }
+            }
+        }
+        self.remove_client(id);
+    }
+
+    fn remove_client(&self, id: u64) {
+        let mut clients = self.lock_clients();
+        clients.list.retain(|(other, _)| *other != id);
+        if self.exit_when_empty && clients.list.is_empty() && !self.stop.load(Ordering::SeqCst) {
+            drop(clients);
+            tracing::debug!(hub = %self.interface, "last node left; hub exits");
+            self.shut_down();
+        }
+    }
+
+    fn shut_down(&self) {
+        let clients = {
+            let mut clients = self.lock_clients();
+            self.stop.store(true, Ordering::SeqCst);
+            std::mem::take(&mut clients.list)
+        };
+        let _ = self.listener.shutdown(std::net::Shutdown::Both);
+        for (_, socket) in clients {
+            let _ = socket.shutdown(std::net::Shutdown::Both);
+        }
+        // Remove the file only if it is still ours (not a successor hub's).
+        if let Ok(meta) = std::fs::metadata(&self.path) {
+            if (meta.dev(), meta.ino()) == self.identity {
+                let _ = std::fs::remove_file(&self.path);
+            }
+        }
+    }
+}
+
+/// A node on a cross-process virtual bus.
+pub struct UnixBus {
+    socket: Socket,
+    interface: String,
+    state: BusState,
+}
+
+/// Why a connection attempt failed.
+enum ConnectError {
+    /// No live hub (no file, stale file, or it closed on us): start one and retry.
+    NoHub(std::io::Error),
+    /// Anything else.
+    Other(CanError),
+}
+
+impl UnixBus {
+    /// Connects to the running hub of virtual bus `name`.
+    pub fn connect(name: &str) -> Result<UnixBus, CanError> {
+        let interface = interface_of(name);
+        Self::try_connect(name).map_err(|e| match e {
+            ConnectError::NoHub(source) => CanError::Open {
+                interface,
+                error: source,
+            },
+            ConnectError::Other(e) => e,
+        })
+    }
+
+    /// Connects to virtual bus `name`, first starting its hub on a thread of this
+    /// process when none runs. That hub serves until its last node disconnects,
+    /// and no longer than this process lives.
+    pub fn open(name: &str) -> Result<UnixBus, CanError> {
+        let mut last = None;
+        for _ in 0..5 {
+            match Self::try_connect(name) {
+                Ok(bus) => return Ok(bus),
+                Err(ConnectError::Other(e)) => return Err(e),
+                Err(ConnectError::NoHub(e)) => last = Some(e),
+            }
+            match Hub::start(name, true) {
+                Ok(hub) => hub.detach(),
+                // Another process won the race: connect to its hub.
+                Err(CanError::Open { error: source, .. })
+                    if source.kind() == ErrorKind::AddrInUse => {}
+                Err(e) => return Err(e),
+            }
+        }
+        Err(CanError::Open {
+            interface: interface_of(name),
+            error: last.unwrap_or_else(|| ErrorKind::NotConnected.into()),
+        })
+    }
+
+    fn try_connect(name: &str) -> Result<UnixBus, ConnectError> {
+        let interface = interface_of(name);
+        let path = prepare_path(name).map_err(ConnectError::Other)?;
+        let other = |source| {
+            ConnectError::Other(CanError::Open {
+                interface: interface.clone(),
+                error: source,
+            })
+        };
+        let socket = new_seqpacket_socket().map_err(other)?;
+        let address = SockAddr::unix(&path).map_err(other)?;
+        if let Err(e) = socket.connect(&address) {
+            return Err(match e.kind() {
+                ErrorKind::NotFound | ErrorKind::ConnectionRefused => ConnectError::NoHub(e),
+                _ => other(e),
+            });
+        }
+        socket
+            .set_read_timeout(Some(GREETING_TIMEOUT))
+            .map_err(other)?;
+        socket
+            .set_write_timeout(Some(SEND_TIMEOUT))
+            .map_err(other)?;
+        let mut buf = [0u8; 64];
+        match recv_packet(&socket, &mut buf, 0) {
+            Ok(n) if &buf[..n] == GREETING => {}
+            // Closed at once: a hub that was exiting. Start over.
+            Ok(0) => return Err(ConnectError::NoHub(ErrorKind::ConnectionReset.into())),
+            Ok(n) => {
+                return Err(ConnectError::Other(CanError::BadPacket {
+                    interface,
+                    len: n,
+                    problem: "expected the hub's greeting (not a graspcell CAN hub?)".into(),
+                }))
+            }
+            Err(e) if e.kind() == ErrorKind::ConnectionReset => return Err(ConnectError::NoHub(e)),
+            Err(e) => return Err(other(e)),
+        }
+        Ok(UnixBus {
+            socket,
+            interface,
+            state: BusState::ErrorActive,
+        })
+    }
+
+    fn disconnected(&mut self, reason: String) -> CanError {
+        self.state = BusState::Disconnected;
+        CanError::Disconnected {
+            interface: self.interface.clone(),
+            reason,
+        }
+    }
+}
+
+impl CanBus for UnixBus {
+    fn send(&mut self, frame: &CanFrame) -> Result<(), CanError> {
+        if self.state == BusState::Disconnected {
+            return Err(self.disconnected("hub gone".into()));
+        }
+        loop {
+            return match self
+                .socket
+                .send_with_flags(&encode_packet(frame), libc::MSG_NOSIGNAL)
+            {
+                Ok(_) => Ok(()),
+                Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
+                    Err(CanError::SendTimeout {
+                        interface: self.interface.clone(),
+                        frame: *frame,
+                        timeout_s: SEND_TIMEOUT.as_secs_f64(),
+                    })
+                }
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        ErrorKind::BrokenPipe
+                            | ErrorKind::ConnectionReset
+                            | ErrorKind::NotConnected
+                    ) =>
+                {
+                    Err(self.disconnected(e.to_string()))
+                }
+                Err(source) => Err(CanError::Io {
+                    interface: self.interface.clone(),
+                    operation: "send",
+                    error: source,
+                }),
+            };
+        }
+    }
+
+    fn recv(&mut self, timeout: Duration) -> Result<Option<CanFrame>, CanError> {
+        if self.state == BusState::Disconnected {
+            return Err(self.disconnected("hub gone".into()));
+        }
+        let deadline = Instant::now() + timeout;
+        let mut buf = [0u8; 64];
+        loop {
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            let received = if remaining.is_zero() {
+                recv_packet(&self.socket, &mut buf, libc::MSG_DONTWAIT)
+            } else {
+                self.socket
+                    .set_read_timeout(Some(remaining))
+                    .and_then(|()| recv_packet(&self.socket, &mut buf, 0))
+            };
+            return match received {
+                Ok(0) => Err(self.disconnected("the hub closed the connection".into())),
+                Ok(n) => {
+                    decode_packet(&buf[..n])
+                        .map(Some)
+                        .map_err(|problem| CanError::BadPacket {
+                            interface: self.interface.clone(),
+                            len: n,
+                            problem,
+                        })
+                }
+                Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
+                    Ok(None)
+                }
+                Err(e) if e.kind() == ErrorKind::ConnectionReset => {
+                    Err(self.disconnected(e.to_string()))
+                }
+                Err(source) => Err(CanError::Io {
+                    interface: self.interface.clone(),
+                    operation: "receive",
+                    error: source,
+                }),
+            };
+        }
+    }
+
+    fn state(&self) -> BusState {
+        self.state
+    }
+
+    fn interface(&self) -> &str {
+        &self.interface
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unique(tag: &str) -> String {
+        static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        format!(
+            "unit-{tag}-{}-{}",
+            std::process::id(),
+            COUNTER.fetch_add(1, Ordering::SeqCst)
+        )
+    }
+
+    #[test]
+    fn packet_is_can_frame_layout_and_garbage_is_named() {
+        let frame = CanFrame::new(0x566, &[0xB0, 0, 1, 2, 3, 4]).unwrap();
+        let packet = encode_packet(&frame);
+        assert_eq!(
+            packet,
+            [0x66, 0x05, 0, 0, 6, 0, 0, 0, 0xB0, 0, 1, 2, 3, 4, 0, 0]
+        );
+        assert_eq!(decode_packet(&packet).unwrap(), frame);
+        assert!(decode_packet(&packet[..15])
+            .unwrap_err()
+            .contains("16 bytes"));
+        let mut extended = packet;
+        extended[3] = 0x80;
+        assert!(decode_packet(&extended).unwrap_err().contains("0x80000566"));
+        let mut long = packet;
+        long[4] = 9;
+        assert!(decode_packet(&long).unwrap_err().contains("DLC 9"));
+    }
+
+    #[test]
+    fn stale_socket_file_is_replaced_and_live_hub_is_not() {
+        let name = unique("stale");
+        let path = prepare_path(&name).unwrap();
+        // A socket file nobody listens on: bound, then its socket closed.
+        {
+            let dead = new_seqpacket_socket().unwrap();
+            dead.bind(&SockAddr::unix(&path).unwrap()).unwrap();
+        }
+        assert!(path.exists());
+        let hub = Hub::bind(&name).unwrap();
+        let err = Hub::bind(&name).err().unwrap().to_string();
+        assert!(
+            err.contains(&name) && err.contains("already serves"),
+            "{err}"
+        );
+        let mut a = UnixBus::connect(&name).unwrap();
+        let mut b = UnixBus::connect(&name).unwrap();
+        let frame = CanFrame::new(0x123, &[1, 2, 3]).unwrap();
+        a.send(&frame).unwrap();
+        assert_eq!(b.recv(Duration::from_secs(5)).unwrap(), Some(frame));
+        drop(hub);
+        assert!(!path.exists());
+        let err = b.recv(Duration::from_secs(5)).unwrap_err();
+        assert!(matches!(err, CanError::Disconnected { .. }), "{err}");
+        assert_eq!(b.state(), BusState::Disconnected);
+    }
+
+    #[test]
+    fn open_hosts_a_hub_that_leaves_with_its_last_node() {
+        let name = unique("auto");
+        let err = UnixBus::connect(&name).err().unwrap().to_string();
+        assert!(err.contains(&format!("virtual:{name}")), "{err}");
+        let a = UnixBus::open(&name).unwrap();
+        let b = UnixBus::open(&name).unwrap();
+        assert!(hub_socket_path(&name).exists());
+        drop(a);
+        drop(b);
+        // The hub removes its file once its last node has gone.
+        let start = Instant::now();
+        while hub_socket_path(&name).exists() && start.elapsed() < Duration::from_secs(10) {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert!(!hub_socket_path(&name).exists());
+        // And a later open starts a fresh hub.
+        let _c = UnixBus::open(&name).unwrap();
+    }
+}
