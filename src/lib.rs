@@ -12,4 +12,5 @@ pub mod cloud;
 pub mod config;
 pub mod geometry;
 pub mod mesh;
+pub mod quality;
 pub mod robot;

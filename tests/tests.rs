@@ -1,1 +1,2 @@
 //! Integration and hardware-in-loop tests, built as one binary (one link step).
+mod quality;

@@ -13,6 +13,8 @@ use std::process::ExitCode;
 pub enum BenchCommand {
     /// Inverse kinematics: median solve time and success rate over seeded random poses.
     Ik(IkBenchArgs),
+    /// Grasp quality metric: epsilon (and volume) evaluations per second on 3-finger contact sets.
+    QualityMetric(QualityMetricBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -29,10 +31,28 @@ pub struct IkBenchArgs {
     pub json: bool,
 }
 
+/// Options of `cell bench quality-metric`.
+#[derive(Debug, Args)]
+pub struct QualityMetricBenchArgs {
+    /// Number of random contact sets per repeat.
+    #[arg(long, default_value_t = 2000)]
+    pub sets: usize,
+    /// Timed repeats over all sets (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    pub repeats: usize,
+    /// Seed of the random contact sets.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print JSON (always JSON; accepted for uniformity).
+    #[arg(long)]
+    pub json: bool,
+}
+
 /// Runs one benchmark.
 pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
     match which {
         BenchCommand::Ik(args) => super::robot::bench_ik(config, args),
+        BenchCommand::QualityMetric(args) => super::quality::bench_metric(args),
     }
 }
 

@@ -5,6 +5,7 @@
 
 pub mod bench;
 mod output;
+mod quality;
 mod robot;
 
 use clap::{Parser, Subcommand};
@@ -34,6 +35,8 @@ pub enum Command {
     Ik(robot::IkArgs),
     /// Print the effective cell configuration (defaults and file) as TOML.
     PrintConfig,
+    /// Grasp quality (Ferrari–Canny epsilon, wrench-space volume) of given contacts.
+    Quality(quality::QualityArgs),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -62,6 +65,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             print!("{}", toml::to_string_pretty(&config)?);
             Ok(ExitCode::SUCCESS)
         }
+        Command::Quality(args) => quality::run(args),
         Command::Bench(which) => bench::run(&cli.config, which),
     }
 }
