@@ -106,38 +106,64 @@ fn brute_force_epsilon(w: &[Wrench]) -> f64 {
     }
 }
 
-/// min over unit u of h(u), by sampling `samples` random directions and refining the
-/// best 16 with a (1+1) evolution strategy. Also returns the smallest h seen anywhere,
-/// so that a caller can check that no direction goes below a claimed epsilon.
+/// Smoothed support function `(1/beta) log sum exp(beta <u, w_i>)` (>= h(u), within
+/// `ln(n) / beta` of it) and its gradient.
+fn smoothed_support(w: &[Wrench], u: &Wrench, beta: f64) -> (f64, Wrench) {
+    let h = support(w, u);
+    let mut sum = 0.0;
+    let mut grad = Wrench::zeros();
+    for p in w {
+        let e = (beta * (u.dot(p) - h)).exp();
+        sum += e;
+        grad += p * e;
+    }
+    (h + sum.ln() / beta, grad / sum)
+}
+
+/// min over unit u of h(u) = max_i <u, w_i>, without any hull: the smallest of
+/// `samples` random directions, then the best 16 refined by gradient descent on the
+/// sphere of the smoothed support function with sharpness raised stage by stage
+/// (continuation) up to an error bound `ln(n) / beta` of 1e-7. Returns the smallest
+/// exact h(u) met; every one of them bounds epsilon from above.
 fn support_minimum(w: &[Wrench], samples: usize, seed: u64) -> f64 {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut unit = |rng: &mut ChaCha8Rng| {
-        Wrench::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal)).normalize()
-    };
     let mut starts: Vec<(f64, Wrench)> = (0..samples)
         .map(|_| {
-            let u = unit(&mut rng);
+            let u = Wrench::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal)).normalize();
             (support(w, &u), u)
         })
         .collect();
     starts.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut best = starts[0].0;
-    for &(h0, u0) in starts.iter().take(16) {
-        let (mut h, mut u, mut step) = (h0, u0, 0.1);
-        for _ in 0..6000 {
-            let v = (u + step * unit(&mut rng)).normalize();
-            let hv = support(w, &v);
-            if hv < h {
-                (h, u) = (hv, v);
-                step *= 1.5;
-            } else {
-                step *= 0.92;
-            }
-            if step < 1e-12 {
-                break;
+    let beta_max = (w.len() as f64).ln() / 1e-7;
+    for &(_, u0) in starts.iter().take(16) {
+        let mut u = u0;
+        let mut beta = 10.0;
+        while beta < beta_max {
+            beta = (beta * 3.0).min(beta_max);
+            let mut step = 1.0 / beta;
+            for _ in 0..200 {
+                let (f, g) = smoothed_support(w, &u, beta);
+                let tangent = g - u * g.dot(&u);
+                if tangent.norm() < 1e-14 {
+                    break;
+                }
+                // Backtracking (Armijo) along the tangent, retracted to the sphere.
+                step *= 4.0;
+                loop {
+                    let v = (u - tangent * step).normalize();
+                    if smoothed_support(w, &v, beta).0 <= f - 0.25 * step * tangent.norm_squared() {
+                        u = v;
+                        break;
+                    }
+                    step *= 0.5;
+                    if step < 1e-16 {
+                        break;
+                    }
+                }
+                best = best.min(support(w, &u));
             }
         }
-        best = best.min(h);
     }
     best
 }
@@ -257,7 +283,10 @@ fn frictionless_cube_grasp_closed_form() {
         q.epsilon
     );
     let sampled = support_minimum(&own_wrenches(&contacts, 0.0, 8, r), 20_000, 11);
-    assert!(sampled >= closed - 1e-12 && sampled <= closed * (1.0 + 1e-4));
+    assert!(
+        sampled >= closed - 1e-12 && sampled <= closed * (1.0 + 1e-5),
+        "{sampled}"
+    );
 }
 
 #[test]

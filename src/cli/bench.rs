@@ -35,7 +35,7 @@ pub struct IkBenchArgs {
 #[derive(Debug, Args)]
 pub struct QualityMetricBenchArgs {
     /// Number of random contact sets per repeat.
-    #[arg(long, default_value_t = 2000)]
+    #[arg(long, default_value_t = 500)]
     pub sets: usize,
     /// Timed repeats over all sets (the median is reported).
     #[arg(long, default_value_t = 5)]

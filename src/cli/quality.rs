@@ -131,6 +131,8 @@ struct QualityMetricBench {
     /// qhull hull alone (epsilon and volume from its facets): the baseline.
     qhull_per_s: f64,
     epsilon_speedup_vs_qhull: f64,
+    /// Median time of one best-first epsilon evaluation (us).
+    epsilon_us: f64,
     /// Best-first epsilon with 4-edge pyramids (a cheaper discretisation, for comparison).
     epsilon_4_edges_per_s: f64,
 }
@@ -167,35 +169,43 @@ pub fn bench_metric(args: QualityMetricBenchArgs) -> anyhow::Result<ExitCode> {
         facets += hull.facets;
         max_diff = max_diff.max((fast - hull.epsilon).abs());
     }
-    let rate = |f: &dyn Fn(&(Vec<Contact>, QualityParams)) -> f64| -> f64 {
-        let mut samples: Vec<f64> = (0..args.repeats)
-            .map(|_| {
-                let start = Instant::now();
-                let mut sink = 0.0;
-                for set in &sets {
-                    sink += f(set);
-                }
-                std::hint::black_box(sink);
-                args.sets as f64 / start.elapsed().as_secs_f64()
-            })
-            .collect();
-        median(&mut samples)
-    };
-    let epsilon_per_s = rate(&|(c, p)| quality::epsilon(c, p).unwrap_or(0.0));
-    let evaluate_per_s = rate(&|(c, p)| quality::evaluate(c, p).map_or(0.0, |q| q.volume));
-    let qhull_per_s = rate(&|(c, p)| {
-        wrench::contact_wrenches(c, p)
-            .ok()
-            .and_then(|w| gws::hull_measures(&w).ok())
-            .map_or(0.0, |m| m.epsilon)
-    });
-    let epsilon_4_edges_per_s = rate(&|(c, p)| {
-        let p4 = QualityParams {
-            cone_edges: 4,
-            ..*p
-        };
-        quality::epsilon(c, &p4).unwrap_or(0.0)
-    });
+    // The methods timed, interleaved within each repeat so that load from other
+    // processes falls on all of them alike.
+    type Method<'a> = Box<dyn Fn(&(Vec<Contact>, QualityParams)) -> f64 + 'a>;
+    let methods: [Method; 4] = [
+        Box::new(|(c, p)| quality::epsilon(c, p).unwrap_or(0.0)),
+        Box::new(|(c, p)| quality::evaluate(c, p).map_or(0.0, |q| q.volume)),
+        Box::new(|(c, p)| {
+            wrench::contact_wrenches(c, p)
+                .ok()
+                .and_then(|w| gws::hull_measures(&w).ok())
+                .map_or(0.0, |m| m.epsilon)
+        }),
+        Box::new(|(c, p)| {
+            let p4 = QualityParams {
+                cone_edges: 4,
+                ..*p
+            };
+            quality::epsilon(c, &p4).unwrap_or(0.0)
+        }),
+    ];
+    let progress = indicatif::ProgressBar::new((args.repeats * methods.len()) as u64);
+    let mut rates = vec![Vec::with_capacity(args.repeats); methods.len()];
+    for _ in 0..args.repeats {
+        for (method, samples) in methods.iter().zip(&mut rates) {
+            let start = Instant::now();
+            let mut sink = 0.0;
+            for set in &sets {
+                sink += method(set);
+            }
+            std::hint::black_box(sink);
+            samples.push(args.sets as f64 / start.elapsed().as_secs_f64());
+            progress.inc(1);
+        }
+    }
+    progress.finish_and_clear();
+    let [epsilon_per_s, evaluate_per_s, qhull_per_s, epsilon_4_edges_per_s] =
+        [0, 1, 2, 3].map(|i| median(&mut rates[i]));
     let n = args.sets as f64;
     let report = QualityMetricBench {
         workload: "BH8-282-like contact sets on a 35 mm cylinder: 3-6 contacts, mu 0.5, \
@@ -213,6 +223,7 @@ pub fn bench_metric(args: QualityMetricBenchArgs) -> anyhow::Result<ExitCode> {
         evaluate_per_s,
         qhull_per_s,
         epsilon_speedup_vs_qhull: epsilon_per_s / qhull_per_s,
+        epsilon_us: 1e6 / epsilon_per_s,
         epsilon_4_edges_per_s,
     };
     super::emit(true, &report, |_| String::new())?;

@@ -331,19 +331,23 @@ impl<'a> Hull<'a> {
                 neighbors[slot] = nb;
                 // The new hyperplane contains the horizon ridge, as do those of g and nb,
                 // so its normal lies in the pencil spanned by theirs: the combination
-                // that also passes through p (distance d_g > 0 above g, d_nb <= 0 above nb).
+                // that also passes through p (distance d_g > tol above g, d_nb <= tol
+                // above nb). When p is (nearly) on nb's hyperplane the combination cancels
+                // if g and nb are (nearly) coplanar: then use the vertices.
                 let (fg, fnb) = (&self.facets[g as usize], &self.facets[nb as usize]);
                 let d_g = fg.normal.dot(&p) - fg.offset;
                 let d_nb = fnb.normal.dot(&p) - fnb.offset;
-                let normal = fg.normal * -d_nb + fnb.normal * d_g;
-                let offset = fg.offset * -d_nb + fnb.offset * d_g;
-                let len = normal.norm();
-                if len <= self.tol * 1e-3 {
-                    return Err(HullFailure {
+                let plane = if d_nb < -self.tol {
+                    let normal = fg.normal * -d_nb + fnb.normal * d_g;
+                    let offset = fg.offset * -d_nb + fnb.offset * d_g;
+                    let len = normal.norm();
+                    (normal / len, offset / len)
+                } else {
+                    self.hyperplane(&verts).ok_or(HullFailure {
                         reason: "new facet without a well-defined hyperplane",
-                    });
-                }
-                let id = self.push_facet(verts, neighbors, (normal / len, offset / len));
+                    })?
+                };
+                let id = self.push_facet(verts, neighbors, plane);
                 let back = self.facets[nb as usize]
                     .neighbors
                     .iter()
@@ -453,6 +457,52 @@ mod tests {
             .collect()
     }
 
+    fn hypercube(center: Wrench) -> Vec<Wrench> {
+        (0..64u32)
+            .map(|bits| {
+                Wrench::from_fn(|k, _| center[k] + if bits & (1 << k) != 0 { 1.0 } else { -1.0 })
+            })
+            .collect()
+    }
+
+    #[test]
+    fn closed_forms_on_highly_degenerate_sets() {
+        // [-1, 1]^6 (32 points on every facet hyperplane): epsilon 1.
+        let depth = origin_depth(&hypercube(Wrench::zeros())).unwrap();
+        assert!(
+            matches!(depth, OriginDepth::Inside { epsilon, .. } if (epsilon - 1.0).abs() < 1e-12),
+            "{depth:?}"
+        );
+        // Shifted by (0.3, -0.6, 0, ...): nearest facet x_2 = -1 at 0.4.
+        let depth = origin_depth(&hypercube(Wrench::new(0.3, -0.6, 0.0, 0.0, 0.0, 0.0))).unwrap();
+        assert!(
+            matches!(depth, OriginDepth::Inside { epsilon, .. } if (epsilon - 0.4).abs() < 1e-12),
+            "{depth:?}"
+        );
+        // The origin on a facet, and outside.
+        let on = hypercube(Wrench::new(0.0, 0.0, 0.0, 1.0, 0.0, 0.0));
+        assert_eq!(origin_depth(&on).unwrap(), OriginDepth::NotInside);
+        let out = hypercube(Wrench::new(0.0, 0.0, 0.0, 0.0, 0.0, -2.5));
+        assert_eq!(origin_depth(&out).unwrap(), OriginDepth::NotInside);
+        // Cross-polytope conv{+-e_k}: 1/sqrt(6); no 7 of its vertices hold the origin
+        // strictly inside their simplex.
+        let cross: Vec<Wrench> = (0..12)
+            .map(|i| {
+                let mut w = Wrench::zeros();
+                w[i % 6] = if i < 6 { 1.0 } else { -1.0 };
+                w
+            })
+            .collect();
+        let depth = origin_depth(&cross).unwrap();
+        assert!(
+            matches!(depth, OriginDepth::Inside { epsilon, .. } if (epsilon - 6f64.sqrt().recip()).abs() < 1e-12),
+            "{depth:?}"
+        );
+        // Lower-dimensional.
+        assert_eq!(origin_depth(&cross[..6]).unwrap(), OriginDepth::Degenerate);
+        assert_eq!(origin_depth(&[]).unwrap(), OriginDepth::Degenerate);
+    }
+
     #[test]
     fn matches_qhull_on_random_sets() {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
@@ -478,5 +528,55 @@ mod tests {
             );
         }
         assert!(inside > 50, "only {inside} sets contained the origin");
+    }
+
+    #[test]
+    fn near_degenerate_sets_agree_with_qhull_or_report_failure() {
+        // Thin hulls (one coordinate scaled down to 1e-10) and lattice points (many
+        // coplanar and repeated): the expansion must agree with qhull or report its
+        // failure (then `epsilon_of_wrenches` uses qhull), never return a wrong value.
+        let mut rng = ChaCha8Rng::seed_from_u64(99);
+        let mut failures = 0;
+        let trials = 1000;
+        for trial in 0..trials {
+            let n = 7 + trial % 40;
+            let thin = [1e-3, 1e-6, 1e-8, 1e-10, 1.0][trial % 5];
+            let lattice = trial % 7 == 0;
+            let points: Vec<Wrench> = (0..n)
+                .map(|_| {
+                    Wrench::from_fn(|k, _| {
+                        let v: f64 = if lattice {
+                            f64::from(rng.gen_range(-2i32..=2))
+                        } else {
+                            rng.sample(StandardNormal)
+                        };
+                        if k == 5 {
+                            v * thin
+                        } else {
+                            v + 0.2
+                        }
+                    })
+                })
+                .collect();
+            let reference = hull_measures(&points).unwrap().epsilon;
+            match origin_depth(&points) {
+                Err(_) => failures += 1,
+                Ok(depth) => {
+                    let eps = match depth {
+                        OriginDepth::Inside { epsilon, .. } => epsilon,
+                        _ => 0.0,
+                    };
+                    assert!(
+                        (eps - reference).abs() <= 1e-8 * (1.0 + reference),
+                        "trial {trial}: {eps} vs qhull {reference}"
+                    );
+                }
+            }
+            assert!(
+                (crate::quality::epsilon_of_wrenches(&points) - reference).abs()
+                    <= 1e-8 * (1.0 + reference)
+            );
+        }
+        assert!(failures * 100 < trials, "{failures} failures in {trials}");
     }
 }
