@@ -230,12 +230,12 @@ pub fn bench_metric(args: QualityMetricBenchArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Reads and evaluates a contacts file (for tests and other tools).
-pub fn evaluate_file(path: &Path) -> anyhow::Result<GraspQuality> {
+/// Reads and evaluates a contacts file.
+fn evaluate_file(path: &Path) -> anyhow::Result<GraspQuality> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read contacts file {}", path.display()))?;
     let file: ContactsFile =
         serde_json::from_str(&text).with_context(|| format!("contacts file {}", path.display()))?;
-    Ok(quality::evaluate(&file.contacts, &file.params())
-        .with_context(|| format!("contacts file {}", path.display()))?)
+    quality::evaluate(&file.contacts, &file.params())
+        .with_context(|| format!("contacts file {}", path.display()))
 }

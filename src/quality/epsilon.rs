@@ -15,12 +15,17 @@
 //!    - `h(n) <= offset + tol`: the facet's hyperplane supports the whole hull. Every
 //!      other facet of the partial hull is farther, so the ball of radius `offset` lies
 //!      in the partial hull, hence in the hull, and the hyperplane bounds it: epsilon is
-//!      exactly `offset` (0 unless it exceeds `tol`).
+//!      `offset`, exact up to `tol` (0 unless it exceeds `tol`).
 //!    - otherwise the support point lies beyond the facet: add it as in Quickhull
 //!      (remove the facets it sees, cone the horizon to it) and repeat.
 //!
 //! Every step adds a new hull vertex, so it ends after at most `n` steps; usually only
-//! the facets near the origin are ever built. Numerical trouble (a facet without a
+//! the facets near the origin are ever built (on 3-6 contact grasps with 8-edge cones:
+//! about 8 points added and 300 facets made, against about 1,400 facets in the full hull).
+//! A new facet's hyperplane contains a horizon ridge shared by the two facets on either
+//! side of it, so its normal is a combination of theirs (O(d) instead of an
+//! orthogonalisation); a popped facet's hyperplane is recomputed from its vertices
+//! before any decision is taken on it. Numerical trouble (a facet without a
 //! well-defined hyperplane, a horizon that does not close) is reported, never hidden, so
 //! the caller can fall back to qhull.
 

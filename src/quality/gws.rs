@@ -73,7 +73,7 @@ pub fn spanning_simplex(points: &[Wrench], tol: f64) -> Option<[usize; DIM + 1]>
     // Residuals of p - p0 off the span of the chosen edges, updated per new direction.
     let mut residuals: Vec<Wrench> = points.iter().map(|p| p - points[i0]).collect();
     let mut basis: Vec<Wrench> = Vec::with_capacity(DIM);
-    for slot in 1..=DIM {
+    for slot in chosen.iter_mut().skip(1) {
         let (i, dist) = farthest(&residuals)?;
         if dist <= tol {
             return None;
@@ -88,7 +88,7 @@ pub fn spanning_simplex(points: &[Wrench], tol: f64) -> Option<[usize; DIM + 1]>
             *r -= q * q.dot(r);
         }
         basis.push(q);
-        chosen[slot] = i;
+        *slot = i;
     }
     Some(chosen)
 }
