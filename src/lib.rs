@@ -16,6 +16,7 @@ pub mod geometry;
 pub mod hw;
 pub mod mesh;
 pub mod ply;
+pub mod quality;
 pub mod robot;
 pub mod trial;
 pub mod sim;

@@ -7,3 +7,4 @@ mod camera;
 mod objects;
 mod fri;
 mod can;
+mod quality;

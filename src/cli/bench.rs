@@ -21,6 +21,8 @@ pub enum BenchCommand {
     Fri(super::fri::FriBenchArgs),
     /// CAN: hand driver round trips against the puck emulator, per bus backend.
     Can(super::can::CanBenchArgs),
+    /// Grasp quality metric: epsilon (and volume) evaluations per second on 3-finger contact sets.
+    QualityMetric(QualityMetricBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -68,6 +70,23 @@ pub struct RenderBenchArgs {
     pub json: bool,
 }
 
+/// Options of `cell bench quality-metric`.
+#[derive(Debug, Args)]
+pub struct QualityMetricBenchArgs {
+    /// Number of random contact sets per repeat.
+    #[arg(long, default_value_t = 500)]
+    pub sets: usize,
+    /// Timed repeats over all sets (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    pub repeats: usize,
+    /// Seed of the random contact sets.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print JSON (always JSON; accepted for uniformity).
+    #[arg(long)]
+    pub json: bool,
+}
+
 /// Runs one benchmark.
 pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
     match which {
@@ -76,6 +95,7 @@ pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Render(args) => super::camera::bench_render(config, args),
         BenchCommand::Fri(args) => super::fri::bench_fri(config, args),
         BenchCommand::Can(args) => super::can::bench(args),
+        BenchCommand::QualityMetric(args) => super::quality::bench_metric(args),
     }
 }
 

@@ -10,6 +10,7 @@ mod objects;
 mod fri;
 mod can;
 mod output;
+mod quality;
 mod robot;
 mod trial;
 
@@ -56,6 +57,8 @@ pub enum Command {
     /// The simulated depth camera: render scenes to point clouds.
     #[command(subcommand)]
     Camera(camera::CameraCommand),
+    /// Grasp quality (Ferrari–Canny epsilon, wrench-space volume) of given contacts.
+    Quality(quality::QualityArgs),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -90,6 +93,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Calibrate(which) => calibrate::run(which),
         Command::Objects(which) => objects::run(which),
         Command::Camera(which) => camera::run(&cli.config, which),
+        Command::Quality(args) => quality::run(args),
         Command::Bench(which) => bench::run(&cli.config, which),
     }
 }
