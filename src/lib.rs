@@ -11,5 +11,6 @@ pub mod cli;
 pub mod cloud;
 pub mod config;
 pub mod geometry;
+pub mod ipc;
 pub mod mesh;
 pub mod robot;

@@ -13,6 +13,8 @@ use std::process::ExitCode;
 pub enum BenchCommand {
     /// Inverse kinematics: median solve time and success rate over seeded random poses.
     Ik(IkBenchArgs),
+    /// Point cloud latency between processes: iceoryx2 against a Unix domain socket.
+    Ipc(super::ipc::IpcBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -33,6 +35,7 @@ pub struct IkBenchArgs {
 pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
     match which {
         BenchCommand::Ik(args) => super::robot::bench_ik(config, args),
+        BenchCommand::Ipc(args) => super::ipc::bench_ipc(args),
     }
 }
 

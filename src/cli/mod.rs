@@ -4,6 +4,7 @@
 //! `--json` and human-readable text otherwise; logs go to stderr.
 
 pub mod bench;
+pub mod ipc;
 mod output;
 mod robot;
 
@@ -37,6 +38,9 @@ pub enum Command {
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Helper process of tests and benchmarks (internal).
+    #[command(hide = true)]
+    IpcPeer(ipc::PeerArgs),
 }
 
 /// Entry point of the `cell` binary: parses arguments, runs, prints the error chain.
@@ -63,6 +67,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Bench(which) => bench::run(&cli.config, which),
+        Command::IpcPeer(args) => ipc::run_peer(args),
     }
 }
 
