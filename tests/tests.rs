@@ -1,1 +1,3 @@
 //! Integration and hardware-in-loop tests, built as one binary (one link step).
+
+mod ipc;

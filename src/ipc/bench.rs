@@ -26,7 +26,7 @@ use super::domain::Domain;
 use super::payloads::{
     CloudAck, CloudHeader, Frame, Intrinsics, Point, MAX_CLOUD_HEIGHT, MAX_CLOUD_WIDTH,
 };
-use super::peer::{PeerProcess, PeerRole, PeerSpec};
+use super::peer::{Linger, PeerProcess, PeerRole, PeerSpec};
 use super::services::CloudTopic;
 use super::stage::{CloudSample, CloudSubscriber, Stage};
 use super::{monotonic_now_ns, IpcError};
@@ -149,7 +149,11 @@ fn io_error(path: &Path) -> impl Fn(std::io::Error) -> IpcError + '_ {
 }
 
 /// The receiving process: acknowledges every cloud with what it read.
-pub fn run_receiver(domain: &Domain, spec: &ReceiverSpec, idle: Duration) -> Result<(), IpcError> {
+pub(crate) fn run_receiver(
+    domain: &Domain,
+    spec: &ReceiverSpec,
+    idle: Duration,
+) -> Result<Linger, IpcError> {
     let stage = Stage::start(domain, "bench-receiver")?;
     let clouds = stage.cloud_subscriber(CloudTopic::Camera)?;
     let acks = stage.publisher::<CloudAck>()?;
@@ -228,7 +232,7 @@ pub fn run_receiver(domain: &Domain, spec: &ReceiverSpec, idle: Duration) -> Res
         stream.write_all(&ack).map_err(io_error(&spec.socket))?;
         receive_and_ack(true)?;
     }
-    Ok(())
+    Ok(Box::new((clouds, acks, stage)))
 }
 
 /// Spins on `try_receive` until a cloud arrives or `timeout` passes.
@@ -431,15 +435,7 @@ fn sender_in_domain(
         on_round();
     }
     drop(stream);
-    match peer.wait_timeout(options.timeout)? {
-        Some(status) if status.success() => {}
-        other => {
-            return Err(IpcError::Peer(format!(
-                "bench receiver (pid {}) did not finish cleanly: {other:?}",
-                peer.id()
-            )))
-        }
-    }
+    peer.finish(options.timeout)?;
     Ok(samples)
 }
 

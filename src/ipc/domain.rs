@@ -49,7 +49,7 @@ impl Domain {
     pub fn system(instance: &str) -> Result<Domain, IpcError> {
         Ok(Domain {
             services: Services::new(instance)?,
-            config: Config::default(),
+            config: base_config(),
             isolated: false,
         })
     }
@@ -97,7 +97,7 @@ impl Domain {
                 value: format!("{prefix} ({e:?})"),
                 reason: "not accepted by iceoryx2",
             })?;
-        let mut config = Config::default();
+        let mut config = base_config();
         config.global.set_root_path(&root_path);
         config.global.prefix = prefix_name;
         Ok(Domain {
@@ -240,6 +240,14 @@ impl Domain {
         }
         Ok(files.len())
     }
+}
+
+/// iceoryx2's defaults, except that creating a node does not clean up dead nodes by
+/// itself: [`Stage::start`](super::Stage::start) does it explicitly, to report it.
+fn base_config() -> Config {
+    let mut config = Config::default();
+    config.global.node.cleanup_dead_nodes_on_creation = false;
+    config
 }
 
 fn remove_file_if_present(path: &Path) -> Result<(), IpcError> {

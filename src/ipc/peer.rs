@@ -3,8 +3,9 @@
 //!
 //! Roles: an echo (copies each camera cloud to the echo topic), a camera stand-in
 //! (answers each trial request with a cloud of a known pattern), and the benchmark's
-//! receiver. Every role gives up after `idle_timeout_s` without input, so an
-//! orphaned peer ends by itself.
+//! receiver. Every role gives up after `idle_timeout_s` without input. After its work
+//! a peer waits for its standard input to close (the parent's [`PeerProcess::finish`],
+//! or the parent's death), so its exit never races with the delivery of what it sent.
 
 use super::bench;
 use super::domain::{Domain, DomainSpec};
@@ -15,7 +16,8 @@ use super::{monotonic_now_ns, IpcError};
 use crate::geometry::Pose;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::io::Read;
+use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 /// The hidden subcommand of the `cell` binary that runs a peer.
@@ -81,22 +83,35 @@ fn pattern_header(trial_id: u64, width: u32, height: u32) -> CloudHeader {
     )
 }
 
-/// Runs the peer described by `spec` until its work is done.
+/// Runs the peer described by `spec`: its work, then waiting for standard input to
+/// close, with its ports still open.
 pub fn run(spec: &PeerSpec) -> Result<(), IpcError> {
     let domain = Domain::from_spec(&spec.domain)?;
     let idle = Duration::from_secs_f64(spec.idle_timeout_s.max(0.0));
-    match &spec.role {
-        PeerRole::Echo { count } => echo(&domain, *count, idle),
+    let stage = match &spec.role {
+        PeerRole::Echo { count } => echo(&domain, *count, idle)?,
         PeerRole::Camera {
             count,
             width,
             height,
-        } => camera(&domain, *count, *width, *height, idle),
-        PeerRole::BenchReceiver(receiver) => bench::run_receiver(&domain, receiver, idle),
-    }
+        } => camera(&domain, *count, *width, *height, idle)?,
+        PeerRole::BenchReceiver(receiver) => bench::run_receiver(&domain, receiver, idle)?,
+    };
+    let mut rest = Vec::new();
+    std::io::stdin()
+        .read_to_end(&mut rest)
+        .map_err(|source| IpcError::Io {
+            path: PathBuf::from("/dev/stdin"),
+            source,
+        })?;
+    drop(stage);
+    Ok(())
 }
 
-fn echo(domain: &Domain, count: usize, idle: Duration) -> Result<(), IpcError> {
+/// What a finished role keeps alive until the peer exits (its node and ports).
+pub(crate) type Linger = Box<dyn std::any::Any>;
+
+fn echo(domain: &Domain, count: usize, idle: Duration) -> Result<Linger, IpcError> {
     let stage = Stage::start(domain, "echo")?;
     let clouds = stage.cloud_subscriber(CloudTopic::Camera)?;
     let echoes = stage.cloud_publisher(CloudTopic::Echo)?;
@@ -106,7 +121,7 @@ fn echo(domain: &Domain, count: usize, idle: Duration) -> Result<(), IpcError> {
             .ok_or_else(|| IpcError::Peer(format!("echo: no cloud {n} within {idle:?}")))?;
         echoes.send_copy(*cloud.header(), cloud.points())?;
     }
-    Ok(())
+    Ok(Box::new((clouds, echoes, stage)))
 }
 
 fn camera(
@@ -115,7 +130,7 @@ fn camera(
     width: u32,
     height: u32,
     idle: Duration,
-) -> Result<(), IpcError> {
+) -> Result<Linger, IpcError> {
     let stage = Stage::start(domain, "camera")?;
     let requests = stage.subscriber::<TrialRequest>()?;
     let clouds = stage.cloud_publisher(CloudTopic::Camera)?;
@@ -130,13 +145,14 @@ fn camera(
             })?
             .send()?;
     }
-    Ok(())
+    Ok(Box::new((requests, clouds, stage)))
 }
 
 /// A running peer process; dropping it kills (SIGKILL) and reaps the process.
 #[derive(Debug)]
 pub struct PeerProcess {
     child: Child,
+    stdin: Option<ChildStdin>,
 }
 
 impl PeerProcess {
@@ -144,10 +160,10 @@ impl PeerProcess {
     pub fn spawn(cell_exe: &Path, spec: &PeerSpec) -> Result<PeerProcess, IpcError> {
         let json = serde_json::to_string(spec)
             .map_err(|e| IpcError::Peer(format!("peer spec to JSON: {e}")))?;
-        let child = Command::new(cell_exe)
+        let mut child = Command::new(cell_exe)
             .arg(PEER_SUBCOMMAND)
             .arg(json)
-            .stdin(Stdio::null())
+            .stdin(Stdio::piped())
             .stdout(Stdio::null())
             .stderr(Stdio::inherit())
             .spawn()
@@ -155,7 +171,25 @@ impl PeerProcess {
                 path: cell_exe.to_path_buf(),
                 source,
             })?;
-        Ok(PeerProcess { child })
+        let stdin = child.stdin.take();
+        Ok(PeerProcess { child, stdin })
+    }
+
+    /// Tells the peer to exit (closes its standard input) and waits up to `timeout`
+    /// for it; an error if it is still running or failed.
+    pub fn finish(&mut self, timeout: Duration) -> Result<ExitStatus, IpcError> {
+        drop(self.stdin.take());
+        match self.wait_timeout(timeout)? {
+            Some(status) if status.success() => Ok(status),
+            Some(status) => Err(IpcError::Peer(format!(
+                "peer (pid {}) failed: {status}",
+                self.id()
+            ))),
+            None => Err(IpcError::Peer(format!(
+                "peer (pid {}) still running after {timeout:?}",
+                self.id()
+            ))),
+        }
     }
 
     /// The process id.

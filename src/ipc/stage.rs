@@ -196,7 +196,10 @@ impl Stage {
         let publisher = service
             .publisher_builder()
             .initial_max_slice_len(MAX_CLOUD_POINTS)
-            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            // Static: a subscriber maps the whole segment when it connects, so a cloud
+            // outlives a publisher that exits right after sending it (a growable
+            // segment is mapped on first receipt, and such a cloud would be lost).
+            .allocation_strategy(AllocationStrategy::Static)
             .create()
             .map_err(|e| IpcError::iceoryx("create publisher", &target, e))?;
         Ok(CloudPublisher {
