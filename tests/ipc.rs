@@ -1,7 +1,7 @@
 //! iceoryx2 between real processes: the test is one process, the `cell` binary in its
 //! hidden `ipc-peer` mode the other. Each test has its own isolated domain (root
 //! directory, file prefix and instance name from the process id, a counter and the
-//! test name) and removes it; waits are bounded.
+//! test name), removed at the end even when the test fails; waits are bounded.
 
 use graspcell::geometry::pose_from_params;
 use graspcell::ipc::peer::{PeerProcess, PeerRole, PeerSpec};
@@ -20,15 +20,6 @@ const WAIT: Duration = Duration::from_secs(30);
 
 fn cell_exe() -> &'static Path {
     Path::new(env!("CARGO_BIN_EXE_cell"))
-}
-
-/// Removes the domain's files when the test ends, even when it fails.
-struct DomainGuard(Domain);
-
-impl Drop for DomainGuard {
-    fn drop(&mut self) {
-        let _ = self.0.remove();
-    }
 }
 
 fn spec(domain: &Domain, role: PeerRole) -> PeerSpec {
@@ -97,8 +88,7 @@ fn assert_same_points(got: &[Point], want: &[Point]) {
 
 #[test]
 fn a_full_cloud_crosses_to_another_process_and_back_unchanged() {
-    let guard = DomainGuard(Domain::temporary("ipc-echo").unwrap());
-    let domain = &guard.0;
+    let domain = &Domain::temporary("ipc-echo").unwrap();
     {
         let stage = Stage::start(domain, "test").unwrap();
         let clouds = stage.cloud_publisher(CloudTopic::Camera).unwrap();
@@ -125,7 +115,10 @@ fn a_full_cloud_crosses_to_another_process_and_back_unchanged() {
             assert_eq!(echo.header().frame().unwrap(), Frame::CameraOptical);
             assert_same_points(echo.points(), points);
         }
-        assert_eq!(echoes.publisher_peers().unwrap(), Peers { alive: 1, dead: 0 });
+        assert_eq!(
+            echoes.publisher_peers().unwrap(),
+            Peers { alive: 1, dead: 0 }
+        );
         peer.finish(WAIT).unwrap();
         assert_eq!(echoes.publisher_peers().unwrap(), Peers::default());
     }
@@ -146,8 +139,7 @@ fn assert_camera_pattern(points: &[Point], trial_id: u64) {
 
 #[test]
 fn a_killed_publisher_is_noticed_cleaned_and_replaced_without_resubscribing() {
-    let guard = DomainGuard(Domain::temporary("ipc-kill").unwrap());
-    let domain = &guard.0;
+    let domain = &Domain::temporary("ipc-kill").unwrap();
     let camera = |count| PeerRole::Camera {
         count,
         width: 640,
@@ -190,7 +182,10 @@ fn a_killed_publisher_is_noticed_cleaned_and_replaced_without_resubscribing() {
         // A new camera process serves the same, never re-created, subscriber.
         let mut second = PeerProcess::spawn(cell_exe(), &spec(domain, camera(1))).unwrap();
         assert!(poll_until(WAIT, || Ok(clouds.publisher_peers()?.alive == 1)).unwrap());
-        assert_eq!(requests.subscriber_peers().unwrap(), Peers { alive: 1, dead: 0 });
+        assert_eq!(
+            requests.subscriber_peers().unwrap(),
+            Peers { alive: 1, dead: 0 }
+        );
         let cloud = ask(2);
         assert_eq!(cloud.header().trial_id, 2);
         assert_camera_pattern(cloud.points(), 2);

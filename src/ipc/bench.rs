@@ -46,7 +46,7 @@ pub const READY_TRIAL_ID: u64 = u64::MAX;
 const SOCKET_HEADER_BYTES: usize = std::mem::size_of::<CloudHeader>();
 /// Bytes of one point on the socket.
 const POINT_BYTES: usize = std::mem::size_of::<Point>();
-/// Bytes of a socket acknowledgement: trial id, receive stamp, points, checksum.
+/// Bytes of a socket acknowledgement: trial id, latency (ns), points, checksum bits.
 const SOCKET_ACK_BYTES: usize = 32;
 
 /// Instructions of the receiving process.
@@ -101,6 +101,31 @@ pub fn touched_indices(n: usize, k: usize) -> Vec<usize> {
         (_, 1) => vec![n - 1],
         _ if k >= n => (0..n).collect(),
         _ => (0..k).map(|j| j * (n - 1) / (k - 1)).collect(),
+    }
+}
+
+/// [`touched_indices`] of `k` points, kept for the last cloud size.
+struct Touch {
+    k: usize,
+    n: usize,
+    indices: Vec<usize>,
+}
+
+impl Touch {
+    fn new(k: usize) -> Touch {
+        Touch {
+            k,
+            n: 0,
+            indices: Vec::new(),
+        }
+    }
+
+    fn indices(&mut self, n: usize) -> &[usize] {
+        if n != self.n {
+            self.n = n;
+            self.indices = touched_indices(n, self.k);
+        }
+        &self.indices
     }
 }
 
@@ -169,7 +194,8 @@ pub(crate) fn run_receiver(
     let max_points = (MAX_CLOUD_WIDTH * MAX_CLOUD_HEIGHT) as usize;
     let mut header = vec![0u8; SOCKET_HEADER_BYTES];
     let mut body = vec![0u8; max_points * POINT_BYTES];
-    let mut indices = Vec::new();
+    let mut touch = Touch::new(spec.touch_points);
+    let mut socket_touch = Touch::new(spec.touch_points);
     let mut receive_and_ack = |poll: bool| -> Result<(), IpcError> {
         let cloud = if poll {
             receive_polling(&clouds, idle)?
@@ -187,10 +213,7 @@ pub(crate) fn run_receiver(
                 max: max_points,
             });
         }
-        if indices.last().map(|&l| l + 1) != Some(points.len()) {
-            indices = touched_indices(points.len(), spec.touch_points);
-        }
-        let sum = checksum(points, &indices);
+        let sum = checksum(points, touch.indices(points.len()));
         let now = monotonic_now_ns();
         let n = points.len() as u64;
         drop(cloud);
@@ -203,7 +226,6 @@ pub(crate) fn run_receiver(
         })?;
         Ok(())
     };
-    let mut socket_indices = Vec::new();
     for _ in 0..spec.rounds {
         receive_and_ack(false)?;
         receive_and_ack(false)?;
@@ -219,10 +241,7 @@ pub(crate) fn run_receiver(
         }
         let body = &mut body[..n * POINT_BYTES];
         stream.read_exact(body).map_err(io_error(&spec.socket))?;
-        if socket_indices.last().map(|&l| l + 1) != Some(n) {
-            socket_indices = touched_indices(n, spec.touch_points);
-        }
-        let sum = checksum_bytes(body, &socket_indices);
+        let sum = checksum_bytes(body, socket_touch.indices(n));
         let now = monotonic_now_ns();
         let mut ack = [0u8; SOCKET_ACK_BYTES];
         ack[0..8].copy_from_slice(&trial_id.to_ne_bytes());

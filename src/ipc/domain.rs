@@ -109,9 +109,10 @@ impl Domain {
 
     /// A fresh isolated domain for a test or benchmark named `tag`: instance
     /// `<tag>-<pid>-<n>`, root `<temp dir>/graspcell-ipc-<pid>-<n>/`, prefix
-    /// `gc<pid>x<n>_`, unique within the machine while this process lives.
-    /// [`Domain::remove`] deletes its files afterwards.
-    pub fn temporary(tag: &str) -> Result<Domain, IpcError> {
+    /// `gc<pid>x<n>_`, unique within the machine while this process lives. Its
+    /// files are removed when the returned guard is dropped (or by
+    /// [`Domain::remove`] earlier, to see errors).
+    pub fn temporary(tag: &str) -> Result<TemporaryDomain, IpcError> {
         static COUNTER: AtomicU64 = AtomicU64::new(0);
         let n = COUNTER.fetch_add(1, Ordering::Relaxed);
         let pid = std::process::id();
@@ -128,6 +129,7 @@ impl Domain {
             .collect();
         let root = std::env::temp_dir().join(format!("graspcell-ipc-{pid}-{n}"));
         Domain::isolated(&format!("{tag}-{pid}-{n}"), &root, &format!("gc{pid}x{n}_"))
+            .map(TemporaryDomain)
     }
 
     /// The domain described by `spec`: isolated when it names both root and prefix,
@@ -248,6 +250,27 @@ fn base_config() -> Config {
     let mut config = Config::default();
     config.global.node.cleanup_dead_nodes_on_creation = false;
     config
+}
+
+/// A domain made by [`Domain::temporary`]; dropping it removes its files (after the
+/// stages and peer processes using it are gone; errors are ignored then).
+#[derive(Debug)]
+pub struct TemporaryDomain(Domain);
+
+impl std::ops::Deref for TemporaryDomain {
+    type Target = Domain;
+
+    fn deref(&self) -> &Domain {
+        &self.0
+    }
+}
+
+impl Drop for TemporaryDomain {
+    fn drop(&mut self) {
+        if let Err(e) = self.0.remove() {
+            tracing::warn!("temporary ipc domain not removed: {e}");
+        }
+    }
 }
 
 fn remove_file_if_present(path: &Path) -> Result<(), IpcError> {

@@ -23,8 +23,8 @@ pub use domain::Domain;
 pub use payloads::*;
 pub use services::{CloudTopic, Services, Topic};
 pub use stage::{
-    CloudLoan, CloudPublisher, CloudSample, CloudSubscriber, MessagePublisher, MessageSubscriber,
-    Peers, Stage, StageStatus,
+    wait_any, CloudLoan, CloudPublisher, CloudSample, CloudSubscriber, MessagePublisher,
+    MessageSubscriber, Peers, Stage, StageStatus, Wakeable,
 };
 
 use std::path::PathBuf;

@@ -903,8 +903,10 @@ mod tests {
             status.phase(),
             Err(IpcError::UnknownCode { code: 99, .. })
         ));
-        let mut plan = GraspPlan::default();
-        plan.reachable = 2;
+        let mut plan = GraspPlan {
+            reachable: 2,
+            ..GraspPlan::default()
+        };
         assert!(plan.reachable().is_err());
         plan.reachable = 1;
         assert!(plan.reachable().unwrap());

@@ -15,8 +15,8 @@ use super::stage::Stage;
 use super::{monotonic_now_ns, IpcError};
 use crate::geometry::Pose;
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
 use std::io::Read;
+use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 

@@ -315,6 +315,47 @@ pub fn poll_until(
     }
 }
 
+/// A receiver that can be woken: gives access to its topic's wake-up listener.
+pub trait Wakeable {
+    /// The listener of the topic's wake-up event service (e.g. to attach to an
+    /// iceoryx2 `WaitSet`).
+    fn wake_listener(&self) -> &Listener<Ipc>;
+}
+
+/// Blocks until any of `receivers` is woken or `timeout` passes; returns whether one
+/// was woken. It consumes the wake-ups, so call `try_receive` on every receiver
+/// afterwards until each is empty (a stage that listens to several topics loops:
+/// drain all, then wait).
+pub fn wait_any(receivers: &[&dyn Wakeable], timeout: Duration) -> Result<bool, IpcError> {
+    let waitset = WaitSetBuilder::new()
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<Ipc>()
+        .map_err(|e| IpcError::iceoryx("create wait set", "wait_any", e))?;
+    let guards = receivers
+        .iter()
+        .map(|r| waitset.attach_notification(r.wake_listener()))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| IpcError::iceoryx("attach to wait set", "wait_any", e))?;
+    let mut woken = false;
+    waitset
+        .wait_and_process_once_with_timeout(
+            |_| {
+                woken = true;
+                CallbackProgression::Continue
+            },
+            timeout,
+        )
+        .map_err(|e| IpcError::iceoryx("wait", "wait_any", e))?;
+    drop(guards);
+    for receiver in receivers {
+        receiver
+            .wake_listener()
+            .try_wait(|_| {})
+            .map_err(|e| IpcError::iceoryx("consume wake-ups", "wait_any", e))?;
+    }
+    Ok(woken)
+}
+
 /// Tries `try_once`, then blocks on `listener` until the next wake-up, until a value
 /// arrives or `timeout` passes (then `None`).
 fn receive_with_timeout<T>(
@@ -397,6 +438,11 @@ where
 }
 
 /// Publishes messages of type `M` and wakes their subscribers.
+///
+/// Keep a publisher until its subscribers have its messages: a subscriber maps a
+/// publisher's memory when it first receives after the publisher appeared, so what
+/// a publisher sent and then dropped before that is lost (a one-shot sender such as
+/// an operator command waits for the answer before it exits).
 #[derive(Debug)]
 pub struct MessagePublisher<M: Message> {
     service: PubSubService<Ipc, M, ()>,
@@ -454,8 +500,15 @@ impl<M: Message> MessageSubscriber<M> {
     }
 }
 
+impl<M: Message> Wakeable for MessageSubscriber<M> {
+    fn wake_listener(&self) -> &Listener<Ipc> {
+        &self.listener
+    }
+}
+
 /// Publishes point clouds (a [`CloudHeader`] and up to [`MAX_CLOUD_POINTS`] points)
-/// written directly into shared memory, and wakes their subscribers.
+/// written directly into shared memory, and wakes their subscribers. As for
+/// [`MessagePublisher`], keep it until its subscribers have what it sent.
 #[derive(Debug)]
 pub struct CloudPublisher {
     service: PubSubService<Ipc, [Point], CloudHeader>,
@@ -599,6 +652,12 @@ impl CloudSubscriber {
     }
 }
 
+impl Wakeable for CloudSubscriber {
+    fn wake_listener(&self) -> &Listener<Ipc> {
+        &self.listener
+    }
+}
+
 /// A received cloud, read in place in shared memory; dropping it returns the memory.
 #[derive(Debug)]
 pub struct CloudSample {
@@ -709,6 +768,34 @@ mod tests {
         domain.remove().unwrap();
         assert!(domain.files().unwrap().is_empty());
         assert!(!domain.root().exists());
+    }
+
+    #[test]
+    fn wait_any_wakes_on_any_topic() {
+        use crate::ipc::payloads::CloudAck;
+        let domain = Domain::temporary("stage-wait-any").unwrap();
+        {
+            let a = Stage::start(&domain, "a").unwrap();
+            let requests = a.subscriber::<TrialRequest>().unwrap();
+            let acks = a.subscriber::<CloudAck>().unwrap();
+            let clouds = a.cloud_subscriber(CloudTopic::Camera).unwrap();
+            let all: [&dyn Wakeable; 3] = [&requests, &acks, &clouds];
+            assert!(!wait_any(&all, Duration::from_millis(5)).unwrap());
+
+            let b = Stage::start(&domain, "b").unwrap();
+            let ack = CloudAck {
+                trial_id: 9,
+                ..CloudAck::default()
+            };
+            let publisher = b.publisher::<CloudAck>().unwrap();
+            publisher.send(&ack).unwrap();
+            assert!(wait_any(&all, WAIT).unwrap());
+            assert!(requests.try_receive().unwrap().is_none());
+            assert_eq!(acks.try_receive().unwrap(), Some(ack));
+            // The wake-up was consumed: nothing wakes the set now.
+            assert!(!wait_any(&all, Duration::from_millis(5)).unwrap());
+        }
+        domain.remove().unwrap();
     }
 
     #[test]
