@@ -16,8 +16,9 @@
 //! - `unix_socket`: the same bytes (header-sized prefix + points) written with one
 //!   `write_all` on a `SOCK_STREAM` socket and read with `read_exact` into a buffer.
 //! - `iceoryx2_zero_copy_polling`: as `iceoryx2_zero_copy`, but the receiver spins on
-//!   `try_receive` instead of blocking on the wake-up event: the transport's floor,
-//!   without the kernel wake-up the other three pay.
+//!   `try_receive` instead of blocking on the wake-up event: the transport without
+//!   the kernel wake-up the other three pay, as long as the spinning receiver keeps
+//!   its core (on a loaded machine it loses it and does worse than blocking).
 //!
 //! The receivers of the first three block (event listener, `read`), as the cell's
 //! stages do.
