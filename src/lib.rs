@@ -14,6 +14,7 @@ pub mod cloud;
 pub mod config;
 pub mod geometry;
 pub mod hw;
+pub mod ipc;
 pub mod mesh;
 pub mod ply;
 pub mod quality;

@@ -8,3 +8,4 @@ mod objects;
 mod fri;
 mod can;
 mod quality;
+mod ipc;

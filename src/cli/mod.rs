@@ -9,6 +9,7 @@ mod camera;
 mod objects;
 mod fri;
 mod can;
+pub mod ipc;
 mod output;
 mod quality;
 mod robot;
@@ -62,6 +63,9 @@ pub enum Command {
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Helper process of tests and benchmarks (internal).
+    #[command(hide = true)]
+    IpcPeer(ipc::PeerArgs),
 }
 
 /// Entry point of the `cell` binary: parses arguments, runs, prints the error chain.
@@ -95,6 +99,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Camera(which) => camera::run(&cli.config, which),
         Command::Quality(args) => quality::run(args),
         Command::Bench(which) => bench::run(&cli.config, which),
+        Command::IpcPeer(args) => ipc::run_peer(args),
     }
 }
 

@@ -1,0 +1,1063 @@
+//! The messages of the cell: `#[repr(C)]` plain data placed in shared memory.
+//!
+//! Every message starts with `trial_id: u64` (0 = no trial) and `stamp_ns: u64`
+//! ([`monotonic_now_ns`](super::monotonic_now_ns) when the sender produced it).
+//! Fields whose bit patterns are not all valid in Rust (enumerations, flags, text)
+//! are stored as integer codes or bytes and read through checked accessors, so a
+//! message from a faulty or different sender gives an error, never undefined
+//! behaviour. Poses are 4x4 row-major homogeneous matrices ([`PoseMatrix`]).
+
+use super::services::Topic;
+use super::IpcError;
+use crate::geometry::{check_finite, matrix_rows, pose_from_matrix_rows, Pose};
+use iceoryx2::prelude::ZeroCopySend;
+use nalgebra::Point3;
+use serde::{Deserialize, Serialize};
+use std::fmt::Debug;
+
+/// Columns of the largest cloud (the camera's image width).
+pub const MAX_CLOUD_WIDTH: u32 = 640;
+/// Rows of the largest cloud (the camera's image height).
+pub const MAX_CLOUD_HEIGHT: u32 = 480;
+/// Most points in one cloud message (640 x 480).
+pub const MAX_CLOUD_POINTS: usize = (MAX_CLOUD_WIDTH * MAX_CLOUD_HEIGHT) as usize;
+/// Most model fits in one [`Fits`] message.
+pub const MAX_FITS: usize = 32;
+/// Capacity in bytes of a [`Name`] (category, task, method).
+pub const NAME_CAPACITY: usize = 32;
+/// Arm joints of the KUKA LBR4+ (A1, A2, E1, A3, A4, A5, A6).
+pub const ARM_JOINTS: usize = 7;
+/// Hand joints of the BH8-282: finger 1, finger 2, finger 3 (inner link), spread.
+pub const HAND_JOINTS: usize = 4;
+
+/// A message of a topic (every payload except point clouds).
+pub trait Message: Debug + Copy + ZeroCopySend + 'static {
+    /// The topic that carries this message.
+    const TOPIC: Topic;
+    /// Trial the message belongs to (0 = none).
+    fn trial_id(&self) -> u64;
+    /// Monotonic time (ns) at which the sender produced it.
+    fn stamp_ns(&self) -> u64;
+}
+
+macro_rules! message {
+    ($t:ty, $topic:expr) => {
+        impl Message for $t {
+            const TOPIC: Topic = $topic;
+            fn trial_id(&self) -> u64 {
+                self.trial_id
+            }
+            fn stamp_ns(&self) -> u64 {
+                self.stamp_ns
+            }
+        }
+    };
+}
+
+/// An enumeration stored as a `u32` code in messages.
+macro_rules! coded_enum {
+    ($(#[$doc:meta])* $name:ident, $field:literal, { $($(#[$vdoc:meta])* $variant:ident = $code:literal),+ $(,)? }) => {
+        $(#[$doc])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+        #[serde(rename_all = "snake_case")]
+        pub enum $name {
+            $($(#[$vdoc])* $variant = $code),+
+        }
+
+        impl $name {
+            /// Every variant.
+            pub const ALL: &'static [$name] = &[$($name::$variant),+];
+
+            /// The code stored in messages.
+            pub fn code(self) -> u32 {
+                self as u32
+            }
+
+            /// The variant of a received code.
+            pub fn from_code(code: u32) -> Result<$name, IpcError> {
+                match code {
+                    $($code => Ok($name::$variant),)+
+                    _ => Err(IpcError::UnknownCode { field: $field, code }),
+                }
+            }
+        }
+    };
+}
+
+coded_enum!(
+    /// The frame a cloud's points are expressed in.
+    Frame, "frame", {
+        /// The camera's optical frame (x right, y down, z forward along the view).
+        CameraOptical = 0,
+        /// The robot base (world) frame, REP 103.
+        Base = 1,
+    }
+);
+
+coded_enum!(
+    /// Outcome of registering one model to the observed object.
+    FitStatus, "fit status", {
+        /// ICP converged; the fit is usable.
+        Converged = 0,
+        /// ICP stopped without converging; the fit may be poor.
+        NotConverged = 1,
+        /// Registration failed (too few points or correspondences).
+        Failed = 2,
+    }
+);
+
+coded_enum!(
+    /// What the executor is doing.
+    Phase, "execution phase", {
+        /// Waiting for a grasp plan.
+        Idle = 0,
+        /// Moving to the pre-grasp pose.
+        MovingToPregrasp = 1,
+        /// Approaching the grasp pose.
+        Approaching = 2,
+        /// Closing the hand.
+        Closing = 3,
+        /// Lifting the object.
+        Lifting = 4,
+        /// Holding the object lifted.
+        Holding = 5,
+        /// Opening the hand and retreating.
+        Releasing = 6,
+        /// The grasp sequence finished.
+        Done = 7,
+        /// Stopped on a fault; the arm is held still.
+        Stopped = 8,
+    }
+);
+
+coded_enum!(
+    /// The observer's grade of a trial.
+    Grade, "grade", {
+        /// Object lifted and held stably (+1).
+        Success = 0,
+        /// Object lifted but slipped or moved in the hand (0).
+        Partial = 1,
+        /// Object not lifted (-1).
+        Failure = 2,
+    }
+);
+
+impl Grade {
+    /// The paper's score: success +1, partial 0, failure -1.
+    pub fn score(self) -> i32 {
+        match self {
+            Grade::Success => 1,
+            Grade::Partial => 0,
+            Grade::Failure => -1,
+        }
+    }
+}
+
+coded_enum!(
+    /// Why a trial failed (the paper's causes plus the cell's own).
+    FailureCause, "failure cause", {
+        /// No failure.
+        None = 0,
+        /// No reachable grasp (inverse kinematics or collision).
+        Reachability = 1,
+        /// Registration did not find the object's pose.
+        RegistrationFailure = 2,
+        /// The category models differ too much from the object.
+        ShapeDissimilarity = 3,
+        /// Any other cause the observer names.
+        Other = 4,
+        /// A stage process died during the trial.
+        StageDied = 5,
+        /// A stage did not answer in time.
+        Timeout = 6,
+        /// A device reported a fault.
+        HardwareFault = 7,
+    }
+);
+
+/// Text in a fixed 32-byte field, NUL-padded (category, task, method names).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("graspcell::ipc::Name")]
+pub struct Name {
+    bytes: [u8; NAME_CAPACITY],
+}
+
+impl Name {
+    /// `text` as the field `field`: at most 32 bytes of UTF-8 without NUL.
+    pub fn new(field: &'static str, text: &str) -> Result<Name, IpcError> {
+        if text.len() > NAME_CAPACITY {
+            return Err(IpcError::NameTooLong {
+                field,
+                len: text.len(),
+                max: NAME_CAPACITY,
+            });
+        }
+        if let Some(offset) = text.bytes().position(|b| b == 0) {
+            return Err(IpcError::NameHasNul { field, offset });
+        }
+        let mut bytes = [0u8; NAME_CAPACITY];
+        bytes[..text.len()].copy_from_slice(text.as_bytes());
+        Ok(Name { bytes })
+    }
+
+    /// The text up to the first NUL; an error names `field` if it is not UTF-8.
+    pub fn to_str(&self, field: &'static str) -> Result<&str, IpcError> {
+        let len = self
+            .bytes
+            .iter()
+            .position(|&b| b == 0)
+            .unwrap_or(NAME_CAPACITY);
+        std::str::from_utf8(&self.bytes[..len]).map_err(|e| IpcError::NameNotUtf8 {
+            field,
+            valid_up_to: e.valid_up_to(),
+        })
+    }
+
+    /// The raw bytes (for tests and diagnostics).
+    pub fn as_bytes(&self) -> &[u8; NAME_CAPACITY] {
+        &self.bytes
+    }
+
+    /// A name from raw bytes, unchecked (as received from another process).
+    pub fn from_bytes(bytes: [u8; NAME_CAPACITY]) -> Name {
+        Name { bytes }
+    }
+}
+
+/// A rigid transform as a 4x4 homogeneous matrix, row-major (`rows[r][c]`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("graspcell::ipc::PoseMatrix")]
+pub struct PoseMatrix {
+    /// The rows of the homogeneous matrix; translation in metres in the last column.
+    pub rows: [[f64; 4]; 4],
+}
+
+impl Default for PoseMatrix {
+    fn default() -> Self {
+        PoseMatrix::from_pose(&Pose::identity())
+    }
+}
+
+/// Largest deviation of a received rotation from orthonormal that is accepted.
+const RIGID_TOLERANCE: f64 = 1e-6;
+
+impl PoseMatrix {
+    /// The matrix of `pose`.
+    pub fn from_pose(pose: &Pose) -> PoseMatrix {
+        PoseMatrix {
+            rows: matrix_rows(pose),
+        }
+    }
+
+    /// The pose, checked: finite, last row `0 0 0 1`, rotation orthonormal with
+    /// determinant +1 (to 1e-6); `field` names the message field in errors.
+    pub fn to_pose(&self, field: &'static str) -> Result<Pose, IpcError> {
+        let flat: Vec<f64> = self.rows.iter().flatten().copied().collect();
+        check_finite(&flat, field)?;
+        let last = self.rows[3];
+        let last_error = (last[0].abs())
+            .max(last[1].abs())
+            .max(last[2].abs())
+            .max((last[3] - 1.0).abs());
+        if last_error > RIGID_TOLERANCE {
+            return Err(IpcError::NotRigid {
+                field,
+                problem: "last row is not 0 0 0 1",
+                error: last_error,
+            });
+        }
+        let r = nalgebra::Matrix3::from_fn(|i, j| self.rows[i][j]);
+        let orth_error = (r.transpose() * r - nalgebra::Matrix3::identity())
+            .abs()
+            .max();
+        if orth_error > RIGID_TOLERANCE {
+            return Err(IpcError::NotRigid {
+                field,
+                problem: "rotation is not orthonormal",
+                error: orth_error,
+            });
+        }
+        let det = r.determinant();
+        if (det - 1.0).abs() > RIGID_TOLERANCE {
+            return Err(IpcError::NotRigid {
+                field,
+                problem: "rotation is a reflection",
+                error: (det - 1.0).abs(),
+            });
+        }
+        Ok(pose_from_matrix_rows(&self.rows))
+    }
+}
+
+fn flag_from_code(field: &'static str, code: u32) -> Result<bool, IpcError> {
+    match code {
+        0 => Ok(false),
+        1 => Ok(true),
+        _ => Err(IpcError::UnknownCode { field, code }),
+    }
+}
+
+/// Operator -> cell: grasp an object of `category` for `task` with `method`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("graspcell::ipc::TrialRequest")]
+pub struct TrialRequest {
+    /// Trial id (> 0), chosen by the requester.
+    pub trial_id: u64,
+    /// Monotonic time of the request (ns).
+    pub stamp_ns: u64,
+    category: Name,
+    task: Name,
+    method: Name,
+}
+message!(TrialRequest, Topic::TrialRequest);
+
+impl TrialRequest {
+    /// A request; each text must fit [`NAME_CAPACITY`] bytes.
+    pub fn new(
+        trial_id: u64,
+        stamp_ns: u64,
+        category: &str,
+        task: &str,
+        method: &str,
+    ) -> Result<TrialRequest, IpcError> {
+        Ok(TrialRequest {
+            trial_id,
+            stamp_ns,
+            category: Name::new("trial request category", category)?,
+            task: Name::new("trial request task", task)?,
+            method: Name::new("trial request method", method)?,
+        })
+    }
+
+    /// Object category (`mug`, `bottle`, ...).
+    pub fn category(&self) -> Result<&str, IpcError> {
+        self.category.to_str("trial request category")
+    }
+
+    /// Task (`top`, `side`, `handle`, `use`).
+    pub fn task(&self) -> Result<&str, IpcError> {
+        self.task.to_str("trial request task")
+    }
+
+    /// Method (`laplace`, `gaussian`, `gaussian-r`, `best-single`).
+    pub fn method(&self) -> Result<&str, IpcError> {
+        self.method.to_str("trial request method")
+    }
+}
+
+/// One point of a cloud (metres); NaN coordinates mark a missing return.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("graspcell::ipc::Point")]
+pub struct Point {
+    /// x (m).
+    pub x: f32,
+    /// y (m).
+    pub y: f32,
+    /// z (m).
+    pub z: f32,
+}
+
+impl Point {
+    /// A point from coordinates (m).
+    pub fn new(x: f32, y: f32, z: f32) -> Point {
+        Point { x, y, z }
+    }
+
+    /// True when all coordinates are finite (the point was observed).
+    pub fn is_valid(&self) -> bool {
+        self.x.is_finite() && self.y.is_finite() && self.z.is_finite()
+    }
+}
+
+impl From<Point3<f32>> for Point {
+    fn from(p: Point3<f32>) -> Point {
+        Point::new(p.x, p.y, p.z)
+    }
+}
+
+impl From<Point> for Point3<f32> {
+    fn from(p: Point) -> Point3<f32> {
+        Point3::new(p.x, p.y, p.z)
+    }
+}
+
+/// Pinhole intrinsics of the depth camera (pixels).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend, Serialize, Deserialize)]
+#[type_name("graspcell::ipc::Intrinsics")]
+pub struct Intrinsics {
+    /// Focal length along x (px).
+    pub fx: f64,
+    /// Focal length along y (px).
+    pub fy: f64,
+    /// Principal point x (px).
+    pub cx: f64,
+    /// Principal point y (px).
+    pub cy: f64,
+}
+
+/// The header of a point cloud message; the points follow as a slice of [`Point`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("graspcell::ipc::CloudHeader")]
+pub struct CloudHeader {
+    /// Trial id (0 = none).
+    pub trial_id: u64,
+    /// Monotonic time of the snapshot (ns).
+    pub stamp_ns: u64,
+    /// Columns of the organised cloud (or the number of points when `height == 1`).
+    pub width: u32,
+    /// Rows of the organised cloud (1 = unorganised).
+    pub height: u32,
+    /// Camera intrinsics of the snapshot.
+    pub intrinsics: Intrinsics,
+    frame: u32,
+    reserved: u32,
+    /// The camera's pose in the robot base frame at the snapshot.
+    pub base_from_camera: PoseMatrix,
+}
+
+impl Default for CloudHeader {
+    fn default() -> Self {
+        CloudHeader {
+            trial_id: 0,
+            stamp_ns: 0,
+            width: 0,
+            height: 0,
+            intrinsics: Intrinsics::default(),
+            frame: Frame::CameraOptical.code(),
+            reserved: 0,
+            base_from_camera: PoseMatrix::default(),
+        }
+    }
+}
+
+impl CloudHeader {
+    /// A header; [`CloudHeader::validate`] checks it against the points.
+    pub fn new(
+        trial_id: u64,
+        stamp_ns: u64,
+        width: u32,
+        height: u32,
+        intrinsics: Intrinsics,
+        frame: Frame,
+        base_from_camera: &Pose,
+    ) -> CloudHeader {
+        CloudHeader {
+            trial_id,
+            stamp_ns,
+            width,
+            height,
+            intrinsics,
+            frame: frame.code(),
+            reserved: 0,
+            base_from_camera: PoseMatrix::from_pose(base_from_camera),
+        }
+    }
+
+    /// The frame the points are expressed in.
+    pub fn frame(&self) -> Result<Frame, IpcError> {
+        Frame::from_code(self.frame)
+    }
+
+    /// Sets the frame the points are expressed in.
+    pub fn set_frame(&mut self, frame: Frame) {
+        self.frame = frame.code();
+    }
+
+    /// Number of points the shape calls for (`width * height`).
+    pub fn len(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// True when the shape holds no points.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Checks that `points` points match the shape and fit [`MAX_CLOUD_POINTS`], that
+    /// the intrinsics are positive and finite, the frame known and the pose rigid.
+    pub fn validate(&self, points: usize) -> Result<(), IpcError> {
+        if self.len() != points || points > MAX_CLOUD_POINTS {
+            return Err(IpcError::CloudShape {
+                width: self.width,
+                height: self.height,
+                points,
+                max: MAX_CLOUD_POINTS,
+            });
+        }
+        let i = &self.intrinsics;
+        for (field, value) in [("intrinsics fx", i.fx), ("intrinsics fy", i.fy)] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(IpcError::NotPositive { field, value });
+            }
+        }
+        check_finite(&[i.cx, i.cy], "intrinsics cx, cy")?;
+        self.frame()?;
+        self.base_from_camera.to_pose("base_from_camera")?;
+        Ok(())
+    }
+}
+
+/// The registration of one category model to the observed object.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("graspcell::ipc::ModelFit")]
+pub struct ModelFit {
+    /// Index of the model in the category database.
+    pub model_id: u32,
+    status: u32,
+    /// `T_i`: the model frame to the robot base (world) frame.
+    pub base_from_model: PoseMatrix,
+    /// Fitting error `eps_i`: mean squared nearest-neighbour distance (m^2).
+    pub eps: f64,
+    /// `sigma_i`: standard deviation of the squared distances (m^2).
+    pub sigma: f64,
+    /// Fraction of target points with a correspondence within the ICP threshold.
+    pub inlier_fraction: f64,
+}
+
+impl ModelFit {
+    /// A fit of model `model_id`.
+    pub fn new(
+        model_id: u32,
+        status: FitStatus,
+        base_from_model: &Pose,
+        eps: f64,
+        sigma: f64,
+        inlier_fraction: f64,
+    ) -> ModelFit {
+        ModelFit {
+            model_id,
+            status: status.code(),
+            base_from_model: PoseMatrix::from_pose(base_from_model),
+            eps,
+            sigma,
+            inlier_fraction,
+        }
+    }
+
+    /// Outcome of the registration.
+    pub fn status(&self) -> Result<FitStatus, IpcError> {
+        FitStatus::from_code(self.status)
+    }
+}
+
+/// Perception -> planner: the fits of every model of the category (up to 32).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("graspcell::ipc::Fits")]
+pub struct Fits {
+    /// Trial id.
+    pub trial_id: u64,
+    /// Monotonic time the fits were computed (ns).
+    pub stamp_ns: u64,
+    count: u32,
+    reserved: u32,
+    models: [ModelFit; MAX_FITS],
+}
+message!(Fits, Topic::Fits);
+
+impl Default for Fits {
+    fn default() -> Self {
+        Fits {
+            trial_id: 0,
+            stamp_ns: 0,
+            count: 0,
+            reserved: 0,
+            models: [ModelFit::default(); MAX_FITS],
+        }
+    }
+}
+
+impl Fits {
+    /// Fits of at most [`MAX_FITS`] models.
+    pub fn new(trial_id: u64, stamp_ns: u64, fits: &[ModelFit]) -> Result<Fits, IpcError> {
+        if fits.len() > MAX_FITS {
+            return Err(IpcError::TooMany {
+                field: "fits",
+                count: fits.len(),
+                max: MAX_FITS,
+            });
+        }
+        let mut out = Fits {
+            trial_id,
+            stamp_ns,
+            count: fits.len() as u32,
+            ..Fits::default()
+        };
+        out.models[..fits.len()].copy_from_slice(fits);
+        Ok(out)
+    }
+
+    /// The fits (checked count).
+    pub fn fits(&self) -> Result<&[ModelFit], IpcError> {
+        let count = self.count as usize;
+        if count > MAX_FITS {
+            return Err(IpcError::TooMany {
+                field: "fits",
+                count,
+                max: MAX_FITS,
+            });
+        }
+        Ok(&self.models[..count])
+    }
+}
+
+/// Planner -> executor: the grasp to execute.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("graspcell::ipc::GraspPlan")]
+pub struct GraspPlan {
+    /// Trial id.
+    pub trial_id: u64,
+    /// Monotonic time the plan was finished (ns).
+    pub stamp_ns: u64,
+    /// Palm pose of the grasp in the robot base frame.
+    pub base_from_palm: PoseMatrix,
+    /// Palm pose before the approach in the robot base frame.
+    pub base_from_pregrasp_palm: PoseMatrix,
+    /// Arm joint angles at the grasp (rad).
+    pub joints_rad: [f64; ARM_JOINTS],
+    /// Arm joint angles at the pre-grasp (rad).
+    pub pregrasp_joints_rad: [f64; ARM_JOINTS],
+    /// Value of the objective at the grasp (eq. 2 with normalising constants).
+    pub objective: f64,
+    reachable: u32,
+    reserved: u32,
+    method: Name,
+}
+message!(GraspPlan, Topic::GraspPlan);
+
+impl GraspPlan {
+    /// A plan. `method` must fit [`NAME_CAPACITY`] bytes.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        trial_id: u64,
+        stamp_ns: u64,
+        base_from_palm: &Pose,
+        base_from_pregrasp_palm: &Pose,
+        joints_rad: [f64; ARM_JOINTS],
+        pregrasp_joints_rad: [f64; ARM_JOINTS],
+        objective: f64,
+        reachable: bool,
+        method: &str,
+    ) -> Result<GraspPlan, IpcError> {
+        Ok(GraspPlan {
+            trial_id,
+            stamp_ns,
+            base_from_palm: PoseMatrix::from_pose(base_from_palm),
+            base_from_pregrasp_palm: PoseMatrix::from_pose(base_from_pregrasp_palm),
+            joints_rad,
+            pregrasp_joints_rad,
+            objective,
+            reachable: reachable as u32,
+            reserved: 0,
+            method: Name::new("grasp plan method", method)?,
+        })
+    }
+
+    /// True when inverse kinematics found both joint vectors within limits.
+    pub fn reachable(&self) -> Result<bool, IpcError> {
+        flag_from_code("grasp plan reachable", self.reachable)
+    }
+
+    /// The method that produced the plan.
+    pub fn method(&self) -> Result<&str, IpcError> {
+        self.method.to_str("grasp plan method")
+    }
+}
+
+/// Joint angles of arm and hand.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("graspcell::ipc::JointState")]
+pub struct JointState {
+    /// Arm A1, A2, E1, A3, A4, A5, A6 (rad).
+    pub arm_rad: [f64; ARM_JOINTS],
+    /// Hand finger 1, finger 2, finger 3 (inner link), spread (rad).
+    pub hand_rad: [f64; HAND_JOINTS],
+}
+
+/// Executor -> anyone: the measured joint angles.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("graspcell::ipc::JointStates")]
+pub struct JointStates {
+    /// Trial id (0 between trials).
+    pub trial_id: u64,
+    /// Monotonic time of the measurement (ns).
+    pub stamp_ns: u64,
+    /// The angles.
+    pub joints: JointState,
+}
+message!(JointStates, Topic::JointStates);
+
+/// Executor -> log: phase, error and joints of the execution.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("graspcell::ipc::ExecutionStatus")]
+pub struct ExecutionStatus {
+    /// Trial id.
+    pub trial_id: u64,
+    /// Monotonic time of the status (ns).
+    pub stamp_ns: u64,
+    phase: u32,
+    /// 0 = no error; otherwise the executor's error code.
+    pub error_code: u32,
+    /// Joint angles at the time of the status.
+    pub joints: JointState,
+}
+message!(ExecutionStatus, Topic::ExecutionStatus);
+
+impl ExecutionStatus {
+    /// A status.
+    pub fn new(
+        trial_id: u64,
+        stamp_ns: u64,
+        phase: Phase,
+        error_code: u32,
+        joints: JointState,
+    ) -> ExecutionStatus {
+        ExecutionStatus {
+            trial_id,
+            stamp_ns,
+            phase: phase.code(),
+            error_code,
+            joints,
+        }
+    }
+
+    /// The phase.
+    pub fn phase(&self) -> Result<Phase, IpcError> {
+        Phase::from_code(self.phase)
+    }
+}
+
+/// Durations of a trial's steps (s); NaN for a step that did not run.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, Serialize, Deserialize)]
+#[type_name("graspcell::ipc::Timings")]
+pub struct Timings {
+    /// Camera snapshot to cloud published.
+    pub capture_s: f64,
+    /// Cloud received to fits published.
+    pub perceive_s: f64,
+    /// Fits received to grasp plan published.
+    pub plan_s: f64,
+    /// Grasp plan received to the end of the grasp sequence.
+    pub execute_s: f64,
+    /// Snapshot to the first grasp command sent to the arm.
+    pub snapshot_to_grasp_command_s: f64,
+    /// Trial request to trial result.
+    pub total_s: f64,
+}
+
+impl Default for Timings {
+    fn default() -> Self {
+        Timings {
+            capture_s: f64::NAN,
+            perceive_s: f64::NAN,
+            plan_s: f64::NAN,
+            execute_s: f64::NAN,
+            snapshot_to_grasp_command_s: f64::NAN,
+            total_s: f64::NAN,
+        }
+    }
+}
+
+/// Log -> operator: the graded outcome of a trial.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("graspcell::ipc::TrialResult")]
+pub struct TrialResult {
+    /// Trial id.
+    pub trial_id: u64,
+    /// Monotonic time of the grading (ns).
+    pub stamp_ns: u64,
+    grade: u32,
+    cause: u32,
+    /// How long each step took.
+    pub timings: Timings,
+}
+message!(TrialResult, Topic::TrialResult);
+
+impl Default for TrialResult {
+    fn default() -> Self {
+        TrialResult::new(
+            0,
+            0,
+            Grade::Failure,
+            FailureCause::Other,
+            Timings::default(),
+        )
+    }
+}
+
+impl TrialResult {
+    /// A result.
+    pub fn new(
+        trial_id: u64,
+        stamp_ns: u64,
+        grade: Grade,
+        cause: FailureCause,
+        timings: Timings,
+    ) -> TrialResult {
+        TrialResult {
+            trial_id,
+            stamp_ns,
+            grade: grade.code(),
+            cause: cause.code(),
+            timings,
+        }
+    }
+
+    /// The observer's grade.
+    pub fn grade(&self) -> Result<Grade, IpcError> {
+        Grade::from_code(self.grade)
+    }
+
+    /// Why the trial failed ([`FailureCause::None`] on success).
+    pub fn cause(&self) -> Result<FailureCause, IpcError> {
+        FailureCause::from_code(self.cause)
+    }
+}
+
+/// Diagnostics: a receiver's acknowledgement of one cloud.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("graspcell::ipc::CloudAck")]
+pub struct CloudAck {
+    /// Trial id of the acknowledged cloud.
+    pub trial_id: u64,
+    /// Monotonic time at which the receiver had read the cloud (ns).
+    pub stamp_ns: u64,
+    /// The cloud's own stamp (ns), so `stamp_ns - cloud_stamp_ns` is the latency.
+    pub cloud_stamp_ns: u64,
+    /// Number of points received.
+    pub points: u64,
+    /// Sum of x + y + z over the points the receiver read (f64).
+    pub checksum: f64,
+}
+message!(CloudAck, Topic::CloudAck);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::pose_from_params;
+    use std::mem::{align_of, size_of};
+
+    #[test]
+    fn names_round_trip_and_limits_are_enforced() {
+        let r = TrialRequest::new(7, 11, "mug", "handle", "laplace").unwrap();
+        assert_eq!(
+            (
+                r.category().unwrap(),
+                r.task().unwrap(),
+                r.method().unwrap()
+            ),
+            ("mug", "handle", "laplace")
+        );
+        // Exactly 32 bytes of multi-byte UTF-8 fits and round-trips.
+        let full = "é".repeat(16);
+        assert_eq!(full.len(), NAME_CAPACITY);
+        assert_eq!(Name::new("f", &full).unwrap().to_str("f").unwrap(), full);
+        assert_eq!(Name::new("f", "").unwrap().to_str("f").unwrap(), "");
+        match Name::new("trial request task", &"x".repeat(33)) {
+            Err(IpcError::NameTooLong { field, len, max }) => {
+                assert_eq!((field, len, max), ("trial request task", 33, 32))
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(
+            Name::new("f", "a\0b"),
+            Err(IpcError::NameHasNul { offset: 1, .. })
+        ));
+        assert!(TrialRequest::new(1, 1, "mug", "top", &"m".repeat(40)).is_err());
+    }
+
+    #[test]
+    fn garbage_names_and_codes_give_errors() {
+        let mut bytes = [0u8; NAME_CAPACITY];
+        bytes[..3].copy_from_slice(&[b'a', 0xff, b'b']);
+        assert!(matches!(
+            Name::from_bytes(bytes).to_str("task"),
+            Err(IpcError::NameNotUtf8 {
+                field: "task",
+                valid_up_to: 1
+            })
+        ));
+        // A name cut in the middle of a multi-byte character is invalid too.
+        let mut cut = [0u8; NAME_CAPACITY];
+        cut[..2].copy_from_slice(&"é".as_bytes()[..1].repeat(2));
+        assert!(Name::from_bytes(cut).to_str("x").is_err());
+
+        let mut status = ExecutionStatus::new(3, 4, Phase::Closing, 0, JointState::default());
+        assert_eq!(status.phase().unwrap(), Phase::Closing);
+        status.phase = 99;
+        assert!(matches!(
+            status.phase(),
+            Err(IpcError::UnknownCode { code: 99, .. })
+        ));
+        let mut plan = GraspPlan {
+            reachable: 2,
+            ..GraspPlan::default()
+        };
+        assert!(plan.reachable().is_err());
+        plan.reachable = 1;
+        assert!(plan.reachable().unwrap());
+    }
+
+    #[test]
+    fn every_code_round_trips_and_codes_are_unique() {
+        fn check<T: Copy + PartialEq + Debug>(
+            all: &[T],
+            code: fn(T) -> u32,
+            from: fn(u32) -> Result<T, IpcError>,
+        ) {
+            let mut codes: Vec<u32> = all.iter().map(|&v| code(v)).collect();
+            for &v in all {
+                assert_eq!(from(code(v)).unwrap(), v);
+            }
+            codes.sort();
+            codes.dedup();
+            assert_eq!(codes.len(), all.len());
+            assert!(from(1000).is_err());
+        }
+        check(Frame::ALL, Frame::code, Frame::from_code);
+        check(FitStatus::ALL, FitStatus::code, FitStatus::from_code);
+        check(Phase::ALL, Phase::code, Phase::from_code);
+        check(Grade::ALL, Grade::code, Grade::from_code);
+        check(
+            FailureCause::ALL,
+            FailureCause::code,
+            FailureCause::from_code,
+        );
+        assert_eq!(
+            Grade::ALL.iter().map(|g| g.score()).collect::<Vec<_>>(),
+            [1, 0, -1]
+        );
+    }
+
+    #[test]
+    fn pose_matrix_round_trips_and_rejects_non_rigid() {
+        let pose = pose_from_params(&[0.4, -0.2, 0.9, 0.3, -1.1, 2.5]);
+        let m = PoseMatrix::from_pose(&pose);
+        // Row-major: translation in the last column.
+        assert_eq!([m.rows[0][3], m.rows[1][3], m.rows[2][3]], [0.4, -0.2, 0.9]);
+        let back = m.to_pose("p").unwrap();
+        assert!((back.to_homogeneous() - pose.to_homogeneous()).abs().max() < 1e-12);
+
+        let mut scaled = m;
+        scaled.rows[0][0] *= 1.1;
+        assert!(matches!(
+            scaled.to_pose("p"),
+            Err(IpcError::NotRigid { problem, .. }) if problem.contains("orthonormal")
+        ));
+        let mut mirrored = PoseMatrix::default();
+        mirrored.rows[2][2] = -1.0;
+        assert!(matches!(
+            mirrored.to_pose("p"),
+            Err(IpcError::NotRigid { problem, .. }) if problem.contains("reflection")
+        ));
+        let mut projective = PoseMatrix::default();
+        projective.rows[3][0] = 0.5;
+        assert!(projective.to_pose("p").is_err());
+        let mut nan = PoseMatrix::default();
+        nan.rows[1][3] = f64::NAN;
+        assert!(matches!(nan.to_pose("p"), Err(IpcError::Geometry(_))));
+    }
+
+    #[test]
+    fn cloud_header_validation() {
+        let intr = Intrinsics {
+            fx: 525.0,
+            fy: 525.0,
+            cx: 319.5,
+            cy: 239.5,
+        };
+        let base_from_camera = pose_from_params(&[1.0, 0.0, 1.2, 0.0, 2.0, 0.0]);
+        let h = CloudHeader::new(
+            5,
+            6,
+            640,
+            480,
+            intr,
+            Frame::CameraOptical,
+            &base_from_camera,
+        );
+        h.validate(MAX_CLOUD_POINTS).unwrap();
+        assert_eq!(h.frame().unwrap(), Frame::CameraOptical);
+        assert!(matches!(
+            h.validate(MAX_CLOUD_POINTS - 1),
+            Err(IpcError::CloudShape {
+                points: 307_199,
+                ..
+            })
+        ));
+        let big = CloudHeader::new(5, 6, 641, 480, intr, Frame::Base, &base_from_camera);
+        assert!(big.validate(641 * 480).is_err());
+        let mut bad = h;
+        bad.intrinsics.fy = 0.0;
+        assert!(matches!(
+            bad.validate(MAX_CLOUD_POINTS),
+            Err(IpcError::NotPositive {
+                field: "intrinsics fy",
+                ..
+            })
+        ));
+        let mut bad = h;
+        bad.frame = 7;
+        assert!(bad.validate(MAX_CLOUD_POINTS).is_err());
+    }
+
+    #[test]
+    fn fits_hold_up_to_capacity() {
+        let pose = pose_from_params(&[0.1, 0.2, 0.3, 0.0, 0.0, 1.0]);
+        let fits: Vec<ModelFit> = (0..MAX_FITS as u32)
+            .map(|i| ModelFit::new(i, FitStatus::Converged, &pose, 1e-6 * i as f64, 0.0, 0.9))
+            .collect();
+        let msg = Fits::new(3, 4, &fits[..5]).unwrap();
+        assert_eq!(msg.fits().unwrap(), &fits[..5]);
+        assert_eq!(
+            Fits::new(3, 4, &fits).unwrap().fits().unwrap().len(),
+            MAX_FITS
+        );
+        let too_many = [fits.clone(), fits].concat();
+        assert!(matches!(
+            Fits::new(3, 4, &too_many),
+            Err(IpcError::TooMany {
+                count: 64,
+                max: 32,
+                ..
+            })
+        ));
+        let mut corrupt = msg;
+        corrupt.count = 33;
+        assert!(corrupt.fits().is_err());
+        assert_eq!(
+            msg.fits().unwrap()[2].status().unwrap(),
+            FitStatus::Converged
+        );
+    }
+
+    #[test]
+    fn layouts_are_fixed() {
+        // Sizes as laid out by repr(C) by hand; a change breaks other processes.
+        assert_eq!(size_of::<Point>(), 12);
+        assert_eq!(align_of::<Point>(), 4);
+        assert_eq!(size_of::<PoseMatrix>(), 128);
+        assert_eq!(size_of::<CloudHeader>(), 8 + 8 + 4 + 4 + 32 + 4 + 4 + 128);
+        assert_eq!(size_of::<TrialRequest>(), 16 + 3 * 32);
+        assert_eq!(size_of::<ModelFit>(), 8 + 128 + 24);
+        assert_eq!(size_of::<Fits>(), 24 + 32 * 160);
+        assert_eq!(size_of::<JointState>(), 11 * 8);
+        assert_eq!(size_of::<GraspPlan>(), 16 + 256 + 112 + 8 + 8 + 32);
+        // The header's stamp sits at byte 8 (the socket benchmark relies on it).
+        assert_eq!(std::mem::offset_of!(CloudHeader, stamp_ns), 8);
+    }
+}
