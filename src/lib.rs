@@ -19,6 +19,7 @@ pub mod mesh;
 pub mod ply;
 pub mod quality;
 pub mod robot;
-pub mod trial;
 pub mod sim;
+pub mod stats;
 pub mod trajectory;
+pub mod trial;

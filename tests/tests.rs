@@ -1,11 +1,11 @@
 //! Integration and hardware-in-loop tests, built as one binary (one link step).
 
-mod shipped_files;
-mod trial;
 mod calib;
 mod camera;
-mod objects;
-mod fri;
 mod can;
-mod quality;
+mod fri;
 mod ipc;
+mod objects;
+mod quality;
+mod shipped_files;
+mod trial;

@@ -4,7 +4,7 @@
 
 use anyhow::Context;
 use clap::Parser;
-use graspcell::clock::SystemClock;
+use graspcell::clock::{Clock, SystemClock};
 use graspcell::hw::fri::JOINTS;
 use graspcell::sim::fri::{run_udp, FriSimulator, SimConfig};
 use std::net::{SocketAddr, UdpSocket};
@@ -76,7 +76,9 @@ fn run(args: Args) -> anyhow::Result<()> {
         args.cycle_ms
     );
     let clock = SystemClock::new();
-    let until = args.seconds.map(Duration::from_secs_f64);
+    let until = args
+        .seconds
+        .map(|s| clock.now() + Duration::from_secs_f64(s));
     run_udp(
         &sim,
         &socket,

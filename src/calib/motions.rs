@@ -164,7 +164,7 @@ fn congruence(pairs: impl Iterator<Item = (Pose, Pose)>) -> Option<(f64, f64, us
         return None;
     }
     let n = angles.len();
-    let med = |v: &mut Vec<f64>| crate::cli::bench::median(v);
+    let med = |v: &mut Vec<f64>| crate::stats::median(v);
     Some((med(&mut angles), med(&mut pitches), n))
 }
 

@@ -139,7 +139,7 @@ pub fn evaluate(samples: &[Sample], hand_eye: &HandEye, weights: &Weights) -> Ev
     let stats = ResidualStats {
         rms_mm: rms(&mm),
         max_mm: mm.iter().copied().fold(0.0, f64::max),
-        median_mm: crate::cli::bench::median(&mut mm),
+        median_mm: crate::stats::median(&mut mm),
         rms_deg: (!deg.is_empty()).then(|| rms(&deg)),
         max_deg: (!deg.is_empty()).then(|| deg.iter().copied().fold(0.0, f64::max)),
     };

@@ -6,10 +6,10 @@
 pub mod bench;
 mod calibrate;
 mod camera;
-mod objects;
-mod fri;
 mod can;
+mod fri;
 pub mod ipc;
+mod objects;
 mod output;
 mod quality;
 mod robot;

@@ -1,9 +1,9 @@
 //! Triangle meshes: the object models of each category.
 
-pub mod ply;
-pub mod stl;
 pub mod obj;
+pub mod ply;
 pub mod procedural;
+pub mod stl;
 pub mod topology;
 
 use crate::geometry::Pose;
