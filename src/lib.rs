@@ -12,6 +12,7 @@ pub mod cli;
 pub mod clock;
 pub mod cloud;
 pub mod config;
+pub mod fsio;
 pub mod geometry;
 pub mod hw;
 pub mod ipc;

@@ -601,12 +601,15 @@ fn cli_renders_a_cloud_and_a_readable_depth_image() {
     ])
     .unwrap();
     run(cli).unwrap();
-    let text = std::fs::read_to_string(&cloud).unwrap();
-    assert!(text.starts_with("ply\nformat ascii 1.0\n"));
-    assert!(text.contains("element vertex 307200\n"));
-    let body = text.split("end_header\n").nth(1).unwrap();
-    assert_eq!(body.lines().count(), 307_200);
-    assert!(body.lines().any(|l| l == "NaN NaN NaN"));
+    let bytes = std::fs::read(&cloud).unwrap();
+    assert!(bytes.starts_with(b"ply\nformat binary_little_endian 1.0\n"));
+    let back = graspcell::cloud::io::read_cloud(&cloud).unwrap();
+    assert_eq!((back.width, back.height, back.len()), (640, 480, 307_200));
+    assert!(
+        back.points.iter().any(|p| p.x.is_nan()),
+        "missing returns stay in place"
+    );
+    assert!(back.valid_points().count() > 100_000);
     let decoder = png::Decoder::new(std::fs::File::open(&png).unwrap());
     let reader = decoder.read_info().unwrap();
     let info = reader.info();

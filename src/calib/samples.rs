@@ -4,8 +4,7 @@ use super::CalibError;
 use crate::geometry::{Pose, PoseJson};
 use nalgebra::{Point3, Quaternion, UnitQuaternion};
 use serde::{Deserialize, Serialize};
-use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Quaternions in files must have a norm within this of 1.
 const QUAT_NORM_TOLERANCE: f64 = 1e-3;
@@ -280,33 +279,17 @@ pub(super) fn pose_from_json(json: &PoseJson, what: &str) -> Result<Pose, String
     Ok(pose)
 }
 
-/// Writes `bytes` to `path` through a temporary file in the same directory and a
-/// rename, so readers see the old file or the new one, never a partial one.
+/// Writes `bytes` to `path` atomically, creating its directory.
 pub(super) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CalibError> {
     let err = |source| CalibError::Write {
         path: path.to_path_buf(),
         source,
     };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&dir).map_err(err)?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => std::fs::create_dir_all(d).map_err(err)?,
+        _ => {}
     }
-    result.map_err(err)
+    crate::fsio::write_atomically(path, bytes).map_err(err)
 }
 
 #[cfg(test)]

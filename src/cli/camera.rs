@@ -2,7 +2,6 @@
 
 use super::bench::{median, percentile, RenderBenchArgs};
 use super::objects::write_atomically;
-use crate::cloud::PointCloud;
 use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
 use crate::mesh::procedural::{generate, Category};
@@ -11,7 +10,6 @@ use crate::sim::scene::{load_scene, Scene, TableBox};
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use serde::Serialize;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
@@ -89,7 +87,11 @@ fn render(config_path: &Path, args: RenderArgs) -> anyhow::Result<ExitCode> {
     let camera = DepthCamera::from_config(&config.camera, loaded.base_from_camera);
     let frame = camera.render(&loaded.scene, args.seed);
     tracing::info!(seed = args.seed, valid = frame.valid_fraction(), "rendered");
-    write_ply_ascii(&args.out, &frame.to_cloud())?;
+    crate::cloud::io::write_cloud(
+        &args.out,
+        &frame.to_cloud(),
+        crate::cloud::io::CloudEncoding::Binary,
+    )?;
     let depth_range_m = valid_depth_range(&frame);
     if let Some(png) = &args.png {
         write_depth_png(png, &frame)?;
@@ -165,27 +167,6 @@ fn valid_depth_range(frame: &DepthFrame) -> Option<[f32; 2]> {
             None => Some([z, z]),
             Some([lo, hi]) => Some([lo.min(z), hi.max(z)]),
         })
-}
-
-/// Writes an organised cloud as ASCII PLY (`nan` for missing points).
-// TODO(lead): replace with cloud::io::write_cloud at merge
-fn write_ply_ascii(path: &Path, cloud: &PointCloud) -> anyhow::Result<()> {
-    let mut text = Vec::with_capacity(cloud.len() * 24 + 256);
-    write!(
-        text,
-        "ply\nformat ascii 1.0\ncomment organised {} x {}, camera optical frame, metres\n\
-         obj_info width {}\nobj_info height {}\nelement vertex {}\n\
-         property float x\nproperty float y\nproperty float z\nend_header\n",
-        cloud.width,
-        cloud.height,
-        cloud.width,
-        cloud.height,
-        cloud.len()
-    )?;
-    for p in &cloud.points {
-        writeln!(text, "{} {} {}", p.x, p.y, p.z)?;
-    }
-    write_atomically(path, &text)
 }
 
 /// The turbo colour map (polynomial approximation) at `t` in `[0, 1]`.

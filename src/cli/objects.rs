@@ -1,10 +1,10 @@
 //! `cell objects generate`: procedural category models written as mesh files.
 
-use crate::mesh::obj::write_obj;
 use crate::mesh::procedural::{generate, instance_seed, Category, Params};
 use crate::mesh::topology::{bounding_box, signed_volume};
+use crate::mesh::{write_mesh, MeshFormat};
 use anyhow::Context;
-use clap::{Args, Subcommand, ValueEnum};
+use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -15,13 +15,6 @@ use std::process::ExitCode;
 pub enum ObjectsCommand {
     /// Write procedural instances of a category (one mesh each) and their parameters.
     Generate(GenerateArgs),
-}
-
-/// Mesh file formats `cell objects generate` writes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum MeshFormat {
-    /// Wavefront OBJ.
-    Obj,
 }
 
 /// Options of `cell objects generate`.
@@ -89,10 +82,8 @@ fn generate_set(args: GenerateArgs) -> anyhow::Result<ExitCode> {
     for index in 0..args.count {
         let seed = instance_seed(args.seed, index as u64);
         let (mesh, params) = generate(args.category, seed);
-        let file = match args.format {
-            MeshFormat::Obj => format!("{}_{index:03}.obj", args.category),
-        };
-        write_obj(&args.out.join(&file), &mesh)?;
+        let file = format!("{}_{index:03}.{}", args.category, args.format.extension());
+        write_mesh(&args.out.join(&file), &mesh)?;
         let (lo, hi) = bounding_box(&mesh).context("generated an empty mesh")?;
         tracing::info!(%file, seed, triangles = mesh.triangles.len(), "wrote instance");
         instances.push(Instance {
@@ -138,16 +129,8 @@ fn generate_set(args: GenerateArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Writes `bytes` to `path` through a temporary file and a rename.
+/// Writes `bytes` to `path` atomically.
 pub(super) fn write_atomically(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
-    let result = std::fs::write(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.with_context(|| format!("cannot write {}", path.display()))
+    crate::fsio::write_atomically(path, bytes)
+        .with_context(|| format!("cannot write {}", path.display()))
 }

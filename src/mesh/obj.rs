@@ -6,8 +6,8 @@
 
 use super::{MeshError, TriMesh};
 use nalgebra::Point3;
-use std::io::{BufRead, BufReader, BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::io::{BufRead, BufReader, Write};
+use std::path::Path;
 
 /// Reads an OBJ file and validates the mesh; errors name the file and line.
 pub fn read_obj(path: &Path) -> Result<TriMesh, MeshError> {
@@ -135,30 +135,15 @@ pub fn write_obj_to(mut out: impl Write, mesh: &TriMesh) -> std::io::Result<()> 
     out.flush()
 }
 
-/// Writes `mesh` to an OBJ file via a temporary file in the same directory, so a
-/// failure never leaves a half-written file.
+/// Writes `mesh` to an OBJ file atomically: a failure never leaves a half-written file.
 pub fn write_obj(path: &Path, mesh: &TriMesh) -> Result<(), MeshError> {
-    let io_error = |source| MeshError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let tmp = temporary_sibling(path);
-    let result = std::fs::File::create(&tmp)
-        .and_then(|file| write_obj_to(BufWriter::new(file), mesh))
-        .and_then(|()| std::fs::rename(&tmp, path));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.map_err(io_error)
-}
-
-/// `dir/.name.tmp-PID` next to `path`.
-fn temporary_sibling(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+    let mut bytes = Vec::new();
+    write_obj_to(&mut bytes, mesh)
+        .and_then(|()| crate::fsio::write_atomically(path, &bytes))
+        .map_err(|source| MeshError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@
 //! extent_xy_m = [0.8, 1.2]
 //! thickness_m = 0.05
 //! [[objects]]
-//! mesh = "models/cup.obj"       # relative to this file
+//! mesh = "models/cup.obj"       # OBJ, STL or PLY, relative to this file
 //! scale = 0.001                 # optional: a millimetre file
 //! pose = { xyz = [0.6, 0.1, 0.0], rpy = [0.0, 0.0, 1.0] }
 //! [[objects]]
@@ -311,14 +311,12 @@ pub fn load_scene(path: &Path, config: &CellConfig) -> Result<LoadedScene, Scene
                     )));
                 }
                 let file = dir.join(file);
-                let mut mesh = read_mesh(&file).map_err(|error| SceneError::Mesh {
-                    path: path.to_path_buf(),
-                    index,
-                    error,
-                })?;
-                for v in &mut mesh.vertices {
-                    v.coords *= scale;
-                }
+                let mesh =
+                    crate::mesh::load_mesh(&file, scale).map_err(|error| SceneError::Mesh {
+                        path: path.to_path_buf(),
+                        index,
+                        error,
+                    })?;
                 (file.display().to_string(), mesh)
             }
             (None, Some(category)) => {
@@ -356,21 +354,4 @@ pub fn load_scene(path: &Path, config: &CellConfig) -> Result<LoadedScene, Scene
         scene,
         base_from_camera,
     })
-}
-
-/// Reads a mesh file by its extension.
-// Only OBJ is read here; STL and PLY readers come from the file-format branch,
-// whose loader should replace this match when the branches merge.
-fn read_mesh(path: &Path) -> Result<TriMesh, MeshError> {
-    match path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .as_deref()
-    {
-        Some("obj") => crate::mesh::obj::read_obj(path),
-        _ => Err(MeshError::UnsupportedFormat {
-            path: path.to_path_buf(),
-        }),
-    }
 }

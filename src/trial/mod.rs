@@ -189,26 +189,10 @@ pub fn software_version() -> String {
     }
 }
 
-/// Writes `bytes` to `path` atomically: a temporary file beside it, synced, then renamed.
+/// Writes `bytes` to `path` atomically (see [`crate::fsio::write_atomically`]).
 pub(crate) fn write_atomically(path: &std::path::Path, bytes: &[u8]) -> Result<(), TrialError> {
-    use std::io::Write;
-    let io = |source| TrialError::Io {
+    crate::fsio::write_atomically(path, bytes).map_err(|source| TrialError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let file_name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".to_string());
-    let tmp = path.with_file_name(format!(".{file_name}.tmp{}", std::process::id()));
-    let result = (|| {
-        let mut file = std::fs::File::create(&tmp)?;
-        file.write_all(bytes)?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.map_err(io)
+    })
 }
