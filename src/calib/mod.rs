@@ -108,6 +108,8 @@
 //! `base_from_camera` as `{xyz, rpy, quat_xyzw}`; perception loads it at start with
 //! [`HandEyeResult::load`].
 
+pub mod collect;
+mod current;
 mod daniilidis;
 mod lm;
 mod motions;
@@ -116,11 +118,14 @@ mod refine;
 mod residuals;
 mod result_file;
 mod samples;
+pub mod sim_rig;
 mod so3;
 mod solve;
+pub mod sphere_fit;
 pub mod synthetic;
 mod tsai_park;
 
+pub use current::{current_base_from_camera, CameraMount, MountSource, DEFAULT_RESULT_PATH};
 pub use daniilidis::daniilidis;
 pub use motions::{
     check_frames, check_motions, measure_motions, Conditioning, MIN_AXIS_SPREAD_DEG,
