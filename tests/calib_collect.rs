@@ -3,18 +3,17 @@
 //! poses is an error.
 
 use graspcell::calib::collect::{
-    plan_poses, run_collection, ArmMover, CameraPrior, CollectError, CollectOptions, Plan,
-    TargetCamera, TargetRig,
+    check_configuration, plan_poses, run_collection, ArmMover, CameraPrior, CollectError,
+    CollectOptions, Plan, PlannedPose, PlannerCell, Rejection, TargetCamera, TargetRig,
 };
 use graspcell::calib::sim_rig::{simulated_rig, SimArm, SimTargetCamera, SimTruth};
 use graspcell::calib::{solve, Method, Sample, SolveOptions, Weights};
 use graspcell::cloud::PointCloud;
 use graspcell::config::CellConfig;
 use graspcell::geometry::{pose_error, Pose};
-use graspcell::robot::kinematics::ArmJoints;
-use graspcell::robot::Robot;
-use graspcell::sim::camera::Intrinsics;
-use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use graspcell::robot::{HandPose, Robot};
+use graspcell::sim::camera::{Intrinsics, Return, Surface};
+use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -63,18 +62,20 @@ fn cell() -> Cell {
     }
 }
 
+impl Cell {
+    fn planner(&self) -> PlannerCell<'_> {
+        PlannerCell {
+            robot: &self.robot,
+            flange_link: &self.config.robot.flange_link,
+            camera: &self.prior,
+            rig: &self.rig,
+            table: &self.config.table,
+        }
+    }
+}
+
 fn plan(cell: &Cell, options: &CollectOptions) -> Plan {
-    plan_poses(
-        &cell.robot,
-        &cell.config.robot.flange_link,
-        &cell.prior,
-        &cell.rig,
-        &cell.config.table,
-        &[0.0; 7],
-        options,
-        &mut |_| {},
-    )
-    .unwrap()
+    plan_poses(&cell.planner(), &[0.0; 7], options, &mut |_| {}).unwrap()
 }
 
 fn sim(cell: &Cell, seed: u64) -> (SimArm, SimTargetCamera) {
@@ -171,4 +172,165 @@ fn simulated_collect_and_solve_recovers_the_true_mount() {
     );
     assert!(dp < 2e-3 && dr.to_degrees() < 0.2, "{dp} m {dr} rad");
     assert!(offset_err < 2e-3, "{offset_err}");
+}
+
+/// Copies of `pose` turned by 100–180° about axes across the line of sight through
+/// the sphere centre, so that the hand comes between the camera and the sphere;
+/// only those the arm can reach.
+fn turned_away<'a>(
+    cell: &'a Cell,
+    pose: &'a PlannedPose,
+    hand: &'a HandPose,
+) -> impl Iterator<Item = PlannedPose> + 'a {
+    let c = pose.centre_base_m;
+    let eye = Point3::from(cell.prior.base_from_camera.translation.vector);
+    let d = (eye - c).normalize();
+    let e1 = d.cross(&Vector3::z()).normalize();
+    let e2 = d.cross(&e1);
+    let (f0, p0) = cell.robot.arm().flange_and_palm(&[0.0; 7]);
+    let flange_from_palm = f0.inverse() * p0;
+    (0..8).flat_map(move |k| {
+        let b = std::f64::consts::TAU * k as f64 / 8.0;
+        let across = Unit::new_normalize(e1 * b.cos() + e2 * b.sin());
+        [180.0f64, 150.0, 120.0, 100.0].into_iter().filter_map(move |deg| {
+            let rotation = UnitQuaternion::from_axis_angle(&across, deg.to_radians())
+                * pose.base_from_flange.rotation;
+            let flange = Isometry3::from_parts(
+                Translation3::from(c.coords - rotation * cell.rig.flange_from_centre_m),
+                rotation,
+            );
+            let s = cell
+                .robot
+                .reach(&(flange * flange_from_palm), hand, &[pose.joints])
+                .ok()?;
+            Some(PlannedPose {
+                joints: s.joints,
+                base_from_flange: cell.robot.arm().flange_and_palm(&s.joints).0,
+                centre_base_m: c,
+                via_home: false,
+            })
+        })
+    })
+}
+
+/// Pixels of the rendered frame with a valid return from objects named `name`
+/// (prefix), at the arm's current joints.
+fn valid_pixels(camera: &mut SimTargetCamera, name: &str) -> usize {
+    let frame = camera.frame();
+    let names: Vec<bool> = camera
+        .scene()
+        .objects
+        .iter()
+        .map(|o| o.name.starts_with(name))
+        .collect();
+    frame.count(|r, s| r == Return::Valid && matches!(s, Surface::Object(i) if names[i as usize]))
+}
+
+/// A pose whose sphere the hand hides (checked in the rendered frame: almost no
+/// sphere pixels) is skipped and reported; the others give samples.
+#[test]
+fn hidden_sphere_pose_is_skipped_and_reported() {
+    let cell = cell();
+    let options = CollectOptions::new(6, cell.rig.radius_m, 3);
+    let mut plan = plan(&cell, &options);
+    assert_eq!(plan.poses.len(), 6);
+    let (mut arm, mut camera) = sim(&cell, 5);
+    // The occluders are rendered: the arm and the sphere are both in view here.
+    arm.move_to(&plan.poses[0].joints, 1.0).unwrap();
+    let sphere_seen = valid_pixels(&mut camera, "calibration sphere");
+    assert!(sphere_seen > 500, "{sphere_seen}");
+    assert!(valid_pixels(&mut camera, "lbr_") > 1000);
+    let hidden = plan
+        .poses
+        .iter()
+        .flat_map(|p| turned_away(&cell, p, &options.hand))
+        .find(|p| {
+            arm.move_to(&p.joints, 1.0).unwrap();
+            valid_pixels(&mut camera, "calibration sphere") < 50
+        })
+        .expect("a reachable pose with the sphere hidden");
+    // The planner's ray check sees it too, and passes the planned poses.
+    let err = check_configuration(&cell.planner(), &options, &hidden.joints).unwrap_err();
+    assert!(matches!(err, CollectError::Rejected(Rejection::Occluded)), "{err}");
+    for p in &plan.poses {
+        let centre = check_configuration(&cell.planner(), &options, &p.joints).unwrap();
+        assert!((centre - p.centre_base_m).norm() < 1e-12);
+    }
+    plan.poses[2] = hidden;
+    arm.move_to(&[0.0; 7], 1.0).unwrap();
+    let collection = run_collection(
+        &plan,
+        &mut arm,
+        &mut camera,
+        &cell.prior,
+        &cell.rig,
+        &options,
+        &mut |_| {},
+    )
+    .unwrap();
+    assert_eq!(collection.samples.len(), 5);
+    let skipped: Vec<_> = collection
+        .captures
+        .iter()
+        .filter(|c| c.outcome.is_err())
+        .collect();
+    assert_eq!(skipped.len(), 1);
+    assert_eq!(skipped[0].pose, 2);
+    eprintln!("skipped: {}", skipped[0].outcome.as_ref().unwrap_err());
+}
+
+/// A camera whose lens is covered after the first `working` frames.
+struct CoveredAfter<C> {
+    inner: C,
+    working: usize,
+    frames: usize,
+}
+
+impl<C: TargetCamera> TargetCamera for CoveredAfter<C> {
+    fn capture(&mut self, timeout_s: f64) -> Result<PointCloud, CollectError> {
+        let mut cloud = self.inner.capture(timeout_s)?;
+        self.frames += 1;
+        if self.frames > self.working {
+            for p in &mut cloud.points {
+                *p = Point3::new(f32::NAN, f32::NAN, f32::NAN);
+            }
+        }
+        Ok(cloud)
+    }
+}
+
+/// Two usable poses of six: an error that counts them and names each skipped pose.
+#[test]
+fn fewer_than_three_usable_poses_is_a_clear_error() {
+    let cell = cell();
+    let options = CollectOptions::new(6, cell.rig.radius_m, 3);
+    let plan = plan(&cell, &options);
+    let (mut arm, camera) = sim(&cell, 5);
+    let mut camera = CoveredAfter {
+        inner: camera,
+        working: 2,
+        frames: 0,
+    };
+    let err = run_collection(
+        &plan,
+        &mut arm,
+        &mut camera,
+        &cell.prior,
+        &cell.rig,
+        &options,
+        &mut |_| {},
+    )
+    .unwrap_err();
+    let text = err.to_string();
+    assert!(matches!(err, CollectError::TooFewUsable { usable: 2, planned: 6, need: 3, .. }), "{text}");
+    assert!(text.contains("only 2 of 6 poses") && text.contains("pose 5: 0 points within 120 mm"), "{text}");
+}
+
+/// Fewer than three poses asked for is refused before anything moves.
+#[test]
+fn too_few_poses_requested_is_refused() {
+    let cell = cell();
+    let options = CollectOptions::new(2, cell.rig.radius_m, 3);
+    let err = plan_poses(&cell.planner(), &[0.0; 7], &options, &mut |_| {}).unwrap_err();
+    assert!(err.to_string().starts_with("poses = 2: need at least 3"), "{err}");
 }

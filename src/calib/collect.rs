@@ -122,6 +122,9 @@ pub enum CollectError {
         /// The skipped poses and why.
         skipped: String,
     },
+    /// The planner would not use a configuration.
+    #[error("configuration rejected: {0}")]
+    Rejected(Rejection),
     /// The robot model refused a configuration.
     #[error(transparent)]
     Robot(#[from] RobotError),
@@ -642,6 +645,25 @@ impl Checker<'_> {
         })
     }
 
+    /// The checks of a configuration the IK found: the flange pose and sphere
+    /// centre, or why the planner would not use it.
+    fn check_joints(&self, q: &ArmJoints) -> Result<(Pose, Point3<f64>), Rejection> {
+        // The flange where the arm actually is (IK is within 1 mm, 0.01 rad).
+        let flange = self.geometry.robot.arm().flange_and_palm(q).0;
+        let centre = self.centre_at(&flange);
+        if !self.clear(q) {
+            return Err(Rejection::RigCollision);
+        }
+        if !self.in_view(&centre) {
+            return Err(Rejection::OutOfView);
+        }
+        let poses = self.geometry.robot.link_poses(q, &self.options.hand);
+        if !self.visible(&poses, &centre) {
+            return Err(Rejection::Occluded);
+        }
+        Ok((flange, centre))
+    }
+
     /// A random candidate flange pose.
     fn draw(&self, rng: &mut ChaCha8Rng) -> (Pose, Point3<f64>) {
         let (lo, hi) = (self.options.region_min_m, self.options.region_max_m);
@@ -677,37 +699,83 @@ impl Checker<'_> {
     }
 }
 
+/// Why the planner would not use a configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum Rejection {
+    /// The sphere is outside the image, the range or the distance limit.
+    #[error("the sphere is out of view")]
+    OutOfView,
+    /// The robot collides, or the sphere touches the table or the arm.
+    #[error("the robot or the sphere collides")]
+    RigCollision,
+    /// The robot hides the sphere from the camera.
+    #[error("the robot hides the sphere")]
+    Occluded,
+}
+
+/// Everything the planner needs to know about the cell.
+#[derive(Debug, Clone, Copy)]
+pub struct PlannerCell<'a> {
+    /// The robot.
+    pub robot: &'a Robot,
+    /// The URDF name of the flange link (the sample frame).
+    pub flange_link: &'a str,
+    /// The camera prior.
+    pub camera: &'a CameraPrior,
+    /// The nominal rig.
+    pub rig: &'a TargetRig,
+    /// The table.
+    pub table: &'a TableConfig,
+}
+
+impl<'a> PlannerCell<'a> {
+    fn checker(&self, options: &'a CollectOptions) -> Result<Checker<'a>, CollectError> {
+        let robot = self.robot;
+        let flange_index = robot.description.link_index(self.flange_link).ok_or_else(|| {
+            CollectError::BadOption {
+                option: "robot.flange_link",
+                value: self.flange_link.to_string(),
+                problem: "is not a link of the URDF".into(),
+            }
+        })?;
+        let (flange0, palm0) = robot.arm().flange_and_palm(&[0.0; ARM_DOF]);
+        Ok(Checker {
+            geometry: RobotGeometry::new(robot, flange_index),
+            camera: self.camera,
+            rig: self.rig,
+            table: self.table,
+            options,
+            flange_from_palm: flange0.inverse() * palm0,
+        })
+    }
+}
+
+/// The planner's checks of one configuration (collisions of robot and sphere,
+/// sphere in view, not hidden by the robot): the sphere's expected centre (base
+/// frame), or why the planner would not use it.
+pub fn check_configuration(
+    cell: &PlannerCell,
+    options: &CollectOptions,
+    joints: &ArmJoints,
+) -> Result<Point3<f64>, CollectError> {
+    let checker = cell.checker(options)?;
+    checker
+        .check_joints(joints)
+        .map(|(_, centre)| centre)
+        .map_err(|r| CollectError::Rejected(r))
+}
+
 /// Draws candidates, keeps the feasible ones, chooses `options.poses` diverse ones
 /// and orders them into collision-free moves from `start` (see the module doc).
 pub fn plan_poses(
-    robot: &Robot,
-    flange_link: &str,
-    camera: &CameraPrior,
-    rig: &TargetRig,
-    table: &TableConfig,
+    cell: &PlannerCell,
     start: &ArmJoints,
     options: &CollectOptions,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Plan, CollectError> {
     options.check()?;
-    let flange_index =
-        robot
-            .description
-            .link_index(flange_link)
-            .ok_or_else(|| CollectError::BadOption {
-                option: "robot.flange_link",
-                value: flange_link.to_string(),
-                problem: "is not a link of the URDF".into(),
-            })?;
-    let (flange0, palm0) = robot.arm().flange_and_palm(&[0.0; ARM_DOF]);
-    let checker = Checker {
-        geometry: RobotGeometry::new(robot, flange_index),
-        camera,
-        rig,
-        table,
-        options,
-        flange_from_palm: flange0.inverse() * palm0,
-    };
+    let robot = cell.robot;
+    let checker = cell.checker(options)?;
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut rejections = Rejections::default();
     let mut pool: Vec<PlannedPose> = Vec::new();
@@ -738,22 +806,21 @@ pub fn plan_poses(
             continue;
         };
         let q = solution.joints;
-        // The flange where the arm actually is (IK is within 1 mm, 0.01 rad).
-        let flange = robot.arm().flange_and_palm(&q).0;
-        let centre = checker.centre_at(&flange);
-        if !checker.clear(&q) {
-            rejections.rig_collision += 1;
-            continue;
-        }
-        let poses = robot.link_poses(&q, &options.hand);
-        if !checker.in_view(&centre) {
-            rejections.out_of_view += 1;
-            continue;
-        }
-        if !checker.visible(&poses, &centre) {
-            rejections.occluded += 1;
-            continue;
-        }
+        let (flange, centre) = match checker.check_joints(&q) {
+            Ok(found) => found,
+            Err(Rejection::OutOfView) => {
+                rejections.out_of_view += 1;
+                continue;
+            }
+            Err(Rejection::RigCollision) => {
+                rejections.rig_collision += 1;
+                continue;
+            }
+            Err(Rejection::Occluded) => {
+                rejections.occluded += 1;
+                continue;
+            }
+        };
         pool.push(PlannedPose {
             joints: q,
             base_from_flange: flange,

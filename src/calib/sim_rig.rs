@@ -18,7 +18,7 @@ use crate::mesh::TriMesh;
 use crate::robot::description::Primitive;
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, Robot};
-use crate::sim::camera::DepthCamera;
+use crate::sim::camera::{DepthCamera, DepthFrame};
 use crate::sim::scene::{Scene, TableBox};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::f64::consts::{PI, TAU};
@@ -210,6 +210,22 @@ impl SimTargetCamera {
         &self.camera
     }
 
+    /// The scene as last rendered: table, one object per robot link (named as in
+    /// the URDF), the sphere and its stalk.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// Renders the scene with the arm where it is now (the next frame's noise seed).
+    pub fn frame(&mut self) -> DepthFrame {
+        self.place();
+        let frame = self
+            .camera
+            .render(&self.scene, self.seed.wrapping_add(self.frames));
+        self.frames += 1;
+        frame
+    }
+
     /// Frames captured so far.
     pub fn frames(&self) -> u64 {
         self.frames
@@ -236,12 +252,7 @@ impl SimTargetCamera {
 
 impl TargetCamera for SimTargetCamera {
     fn capture(&mut self, _timeout_s: f64) -> Result<PointCloud, CollectError> {
-        self.place();
-        let frame = self
-            .camera
-            .render(&self.scene, self.seed.wrapping_add(self.frames));
-        self.frames += 1;
-        Ok(frame.to_cloud())
+        Ok(self.frame().to_cloud())
     }
 }
 
