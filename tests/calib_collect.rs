@@ -7,10 +7,13 @@ use graspcell::calib::collect::{
     CollectOptions, Plan, PlannedPose, PlannerCell, Rejection, TargetCamera, TargetRig,
 };
 use graspcell::calib::sim_rig::{simulated_rig, SimArm, SimTargetCamera, SimTruth};
-use graspcell::calib::{solve, Method, Sample, SolveOptions, Weights};
+use clap::Parser;
+use graspcell::calib::{
+    current_base_from_camera, solve, Method, MountSource, Sample, SampleFile, SolveOptions, Weights,
+};
 use graspcell::cloud::PointCloud;
 use graspcell::config::CellConfig;
-use graspcell::geometry::{pose_error, Pose};
+use graspcell::geometry::{pose_error, pose_from_params, Pose};
 use graspcell::robot::{HandPose, Robot};
 use graspcell::sim::camera::{Intrinsics, Return, Surface};
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
@@ -333,4 +336,106 @@ fn too_few_poses_requested_is_refused() {
     let options = CollectOptions::new(2, cell.rig.radius_m, 3);
     let err = plan_poses(&cell.planner(), &[0.0; 7], &options, &mut |_| {}).unwrap_err();
     assert!(err.to_string().starts_with("poses = 2: need at least 3"), "{err}");
+}
+
+fn run_cell(args: &[&str]) -> anyhow::Result<std::process::ExitCode> {
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("robot/cell.toml");
+    let mut argv = vec!["cell", "--config", config.to_str().unwrap()];
+    argv.extend_from_slice(args);
+    graspcell::cli::run(graspcell::cli::Cli::try_parse_from(argv)?)
+}
+
+fn temp_dir(tag: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "graspcell-calib-collect-{tag}-{}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// `cell calibrate collect` then `cell calibrate solve`, then perception's loader:
+/// the mount it returns is the simulated truth (given on the command line as an
+/// error of the nominal mount) within 2 mm and 0.2°.
+#[test]
+fn cli_collect_solve_and_load_the_mount() {
+    let dir = temp_dir("cli");
+    let samples = dir.join("samples.json");
+    let result = dir.join("hand_eye.toml");
+    let error = [0.012, 0.01, -0.006, -0.015, 0.02, 0.01];
+    let error_text = error.map(|v| v.to_string()).join(",");
+    run_cell(&[
+        "calibrate",
+        "collect",
+        "--poses",
+        "8",
+        "--seed",
+        "4",
+        "--sim-camera-error",
+        &error_text,
+        "--out",
+        samples.to_str().unwrap(),
+        "--json",
+    ])
+    .unwrap();
+    let file = SampleFile::load(&samples).unwrap();
+    assert_eq!(file.samples.len(), 8);
+    assert!(file.samples.iter().all(|s| matches!(s, Sample::Point(_))));
+    run_cell(&[
+        "calibrate",
+        "solve",
+        "--samples",
+        samples.to_str().unwrap(),
+        "--method",
+        "points",
+        "--out",
+        result.to_str().unwrap(),
+        "--json",
+    ])
+    .unwrap();
+    let config = config();
+    let mount = current_base_from_camera(&config, &result);
+    assert!(matches!(mount.source, MountSource::Calibrated { .. }), "{:?}", mount.source);
+    let nominal = config.base_from_camera();
+    let e = pose_from_params(&error);
+    let truth = Isometry3::from_parts(
+        Translation3::from(nominal.translation.vector + e.translation.vector),
+        e.rotation * nominal.rotation,
+    );
+    let (dp, dr) = pose_error(&mount.base_from_camera, &truth);
+    assert!(dp < 2e-3 && dr.to_degrees() < 0.2, "{dp} m {dr} rad");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Hardware backends are refused with what to change; nothing is written.
+#[test]
+fn cli_collect_refuses_hardware_backends() {
+    let dir = temp_dir("hw");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("robot/cell.toml"))
+        .unwrap()
+        .replacen("backend = \"sim\"", "backend = \"replay\"", 1)
+        .replace(
+            "urdf = \"lbr4_bh8_282.urdf\"",
+            &format!("urdf = {:?}", root.join("robot/lbr4_bh8_282.urdf")),
+        );
+    let config = dir.join("cell.toml");
+    std::fs::write(&config, text).unwrap();
+    let out = dir.join("samples.json");
+    let argv = [
+        "cell",
+        "--config",
+        config.to_str().unwrap(),
+        "calibrate",
+        "collect",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let err = graspcell::cli::run(graspcell::cli::Cli::try_parse_from(argv).unwrap())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("camera.backend = \"replay\"") && err.contains("set both to \"sim\""), "{err}");
+    assert!(!out.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
 }
