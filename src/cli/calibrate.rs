@@ -644,10 +644,104 @@ struct BenchReport {
     seed: u64,
     baseline: &'static str,
     results: Vec<BenchRow>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    collect: Option<CollectBench>,
 }
 
-/// Runs `cell bench calib`: median solve time of each method on synthetic samples.
-pub fn bench_calib(args: CalibBenchArgs) -> anyhow::Result<ExitCode> {
+/// The simulated collection's timing in `cell bench calib`.
+#[derive(Debug, Serialize)]
+struct CollectBench {
+    workload: String,
+    repeats: usize,
+    plan_ms_median: f64,
+    capture_ms_per_pose_median: f64,
+    render_ms_median: f64,
+    capture_ratio_to_render: f64,
+    usable_samples_min: usize,
+}
+
+/// Times `repeats` simulated collections of `poses` poses (seeds `seed..`): the
+/// planning, the capture with sphere fit per pose, and a bare render of the same
+/// scene as the baseline.
+fn bench_collect(
+    config_path: &Path,
+    poses: usize,
+    repeats: usize,
+    seed: u64,
+) -> anyhow::Result<CollectBench> {
+    let config = CellConfig::load(config_path)?;
+    let robot = Arc::new(Robot::load(&config)?);
+    let rig = TargetRig::standard();
+    let prior = CameraPrior {
+        intrinsics: Intrinsics::from(&config.camera),
+        base_from_camera: config.base_from_camera(),
+    };
+    let cell = PlannerCell {
+        robot: &robot,
+        flange_link: &config.robot.flange_link,
+        camera: &prior,
+        rig: &rig,
+        table: &config.table,
+    };
+    let truth = SimTruth {
+        base_from_camera: prior.base_from_camera,
+        rig,
+    };
+    let (mut plan_ms, mut capture_ms, mut render_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let mut usable_min = usize::MAX;
+    let bar = indicatif::ProgressBar::new(repeats as u64);
+    for r in 0..repeats as u64 {
+        let options = CollectOptions::new(poses, rig.radius_m, seed + r);
+        let (mut arm, mut camera) = simulated_rig(
+            &config,
+            Arc::clone(&robot),
+            &truth,
+            options.hand,
+            options.home,
+            seed + r,
+        )?;
+        let start = Instant::now();
+        let plan = plan_poses(&cell, &options.home, &options, &mut |_| {})?;
+        plan_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        let start = Instant::now();
+        let collection = run_collection(
+            &plan,
+            &mut arm,
+            &mut camera,
+            &prior,
+            &rig,
+            &options,
+            &mut |_| {},
+        )?;
+        capture_ms.push(start.elapsed().as_secs_f64() * 1e3 / plan.poses.len().max(1) as f64);
+        usable_min = usable_min.min(collection.samples.len());
+        let start = Instant::now();
+        camera.frame();
+        render_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let capture = median(&mut capture_ms);
+    let render = median(&mut render_ms);
+    Ok(CollectBench {
+        workload: format!(
+            "simulated collection of {poses} poses (sphere on the hand, Kinect noise, {}x{} px), seeds {seed}..{}; plan = candidate draw + IK + checks + greedy selection; capture = move + render + sphere fit per pose; baseline: one render of the same scene",
+            config.camera.width_px,
+            config.camera.height_px,
+            seed + repeats as u64 - 1
+        ),
+        repeats,
+        plan_ms_median: median(&mut plan_ms),
+        capture_ms_per_pose_median: capture,
+        render_ms_median: render,
+        capture_ratio_to_render: capture / render,
+        usable_samples_min: usable_min,
+    })
+}
+
+/// Runs `cell bench calib`: median solve time of each method on synthetic samples,
+/// and the timing of simulated collections.
+pub fn bench_calib(config: &Path, args: CalibBenchArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
         args.samples >= 5,
         "--samples {}: need at least 5",
@@ -739,7 +833,18 @@ pub fn bench_calib(args: CalibBenchArgs) -> anyhow::Result<ExitCode> {
     }
     bar.finish_and_clear();
     let tsai_us = medians[0].1;
+    let collect = if args.collect_repeats > 0 {
+        Some(bench_collect(
+            config,
+            args.samples,
+            args.collect_repeats,
+            args.seed,
+        )?)
+    } else {
+        None
+    };
     let report = BenchReport {
+        collect,
         benchmark: "calib",
         workload: format!(
             "{} synthetic samples (seed {}, noise {} mm / {}° per axis), each method solved {} times; median wall time",
