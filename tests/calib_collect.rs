@@ -2,12 +2,12 @@
 //! camera's true mount; poses without a visible sphere are skipped; too few usable
 //! poses is an error.
 
+use clap::Parser;
 use graspcell::calib::collect::{
     check_configuration, plan_poses, run_collection, ArmMover, CameraPrior, CollectError,
     CollectOptions, Plan, PlannedPose, PlannerCell, Rejection, TargetCamera, TargetRig,
 };
 use graspcell::calib::sim_rig::{simulated_rig, SimArm, SimTargetCamera, SimTruth};
-use clap::Parser;
 use graspcell::calib::{
     current_base_from_camera, solve, Method, MountSource, Sample, SampleFile, SolveOptions, Weights,
 };
@@ -100,7 +100,10 @@ fn sim(cell: &Cell, seed: u64) -> (SimArm, SimTargetCamera) {
 fn simulated_collect_and_solve_recovers_the_true_mount() {
     let cell = cell();
     let (dp, dr) = pose_error(&cell.truth.base_from_camera, &cell.prior.base_from_camera);
-    assert!((dp - 0.02).abs() < 1e-3 && (dr.to_degrees() - 2.0).abs() < 0.1, "{dp} {dr}");
+    assert!(
+        (dp - 0.02).abs() < 1e-3 && (dr.to_degrees() - 2.0).abs() < 0.1,
+        "{dp} {dr}"
+    );
     let options = CollectOptions::new(25, cell.rig.radius_m, 7);
     let t = std::time::Instant::now();
     let plan = plan(&cell, &options);
@@ -115,8 +118,16 @@ fn simulated_collect_and_solve_recovers_the_true_mount() {
     );
     assert!(plan.poses.len() >= 20, "{}", plan.poses.len());
     // Spread axes: rotations of at least 15° RMS about the weakest axis.
-    assert!(plan.diversity.axis_spread_deg > 45.0, "{:?}", plan.diversity);
-    assert!(plan.diversity.rotation_rms_deg[2] > 15.0, "{:?}", plan.diversity);
+    assert!(
+        plan.diversity.axis_spread_deg > 45.0,
+        "{:?}",
+        plan.diversity
+    );
+    assert!(
+        plan.diversity.rotation_rms_deg[2] > 15.0,
+        "{:?}",
+        plan.diversity
+    );
     let (mut arm, mut camera) = sim(&cell, 11);
     let t = std::time::Instant::now();
     let collection = run_collection(
@@ -151,7 +162,12 @@ fn simulated_collect_and_solve_recovers_the_true_mount() {
     }
     eprintln!("worst sphere centre error {worst_mm:.2} mm");
     assert!(collection.samples.len() >= 20);
-    let samples: Vec<Sample> = collection.samples.iter().copied().map(Sample::Point).collect();
+    let samples: Vec<Sample> = collection
+        .samples
+        .iter()
+        .copied()
+        .map(Sample::Point)
+        .collect();
     let solution = solve(
         &samples,
         &SolveOptions {
@@ -195,24 +211,26 @@ fn turned_away<'a>(
     (0..8).flat_map(move |k| {
         let b = std::f64::consts::TAU * k as f64 / 8.0;
         let across = Unit::new_normalize(e1 * b.cos() + e2 * b.sin());
-        [180.0f64, 150.0, 120.0, 100.0].into_iter().filter_map(move |deg| {
-            let rotation = UnitQuaternion::from_axis_angle(&across, deg.to_radians())
-                * pose.base_from_flange.rotation;
-            let flange = Isometry3::from_parts(
-                Translation3::from(c.coords - rotation * cell.rig.flange_from_centre_m),
-                rotation,
-            );
-            let s = cell
-                .robot
-                .reach(&(flange * flange_from_palm), hand, &[pose.joints])
-                .ok()?;
-            Some(PlannedPose {
-                joints: s.joints,
-                base_from_flange: cell.robot.arm().flange_and_palm(&s.joints).0,
-                centre_base_m: c,
-                via_home: false,
+        [180.0f64, 150.0, 120.0, 100.0]
+            .into_iter()
+            .filter_map(move |deg| {
+                let rotation = UnitQuaternion::from_axis_angle(&across, deg.to_radians())
+                    * pose.base_from_flange.rotation;
+                let flange = Isometry3::from_parts(
+                    Translation3::from(c.coords - rotation * cell.rig.flange_from_centre_m),
+                    rotation,
+                );
+                let s = cell
+                    .robot
+                    .reach(&(flange * flange_from_palm), hand, &[pose.joints])
+                    .ok()?;
+                Some(PlannedPose {
+                    joints: s.joints,
+                    base_from_flange: cell.robot.arm().flange_and_palm(&s.joints).0,
+                    centre_base_m: c,
+                    via_home: false,
+                })
             })
-        })
     })
 }
 
@@ -254,7 +272,10 @@ fn hidden_sphere_pose_is_skipped_and_reported() {
         .expect("a reachable pose with the sphere hidden");
     // The planner's ray check sees it too, and passes the planned poses.
     let err = check_configuration(&cell.planner(), &options, &hidden.joints).unwrap_err();
-    assert!(matches!(err, CollectError::Rejected(Rejection::Occluded)), "{err}");
+    assert!(
+        matches!(err, CollectError::Rejected(Rejection::Occluded)),
+        "{err}"
+    );
     for p in &plan.poses {
         let centre = check_configuration(&cell.planner(), &options, &p.joints).unwrap();
         assert!((centre - p.centre_base_m).norm() < 1e-12);
@@ -325,8 +346,22 @@ fn fewer_than_three_usable_poses_is_a_clear_error() {
     )
     .unwrap_err();
     let text = err.to_string();
-    assert!(matches!(err, CollectError::TooFewUsable { usable: 2, planned: 6, need: 3, .. }), "{text}");
-    assert!(text.contains("only 2 of 6 poses") && text.contains("pose 5: 0 points within 120 mm"), "{text}");
+    assert!(
+        matches!(
+            err,
+            CollectError::TooFewUsable {
+                usable: 2,
+                planned: 6,
+                need: 3,
+                ..
+            }
+        ),
+        "{text}"
+    );
+    assert!(
+        text.contains("only 2 of 6 poses") && text.contains("pose 5: 0 points within 120 mm"),
+        "{text}"
+    );
 }
 
 /// Fewer than three poses asked for is refused before anything moves.
@@ -335,7 +370,10 @@ fn too_few_poses_requested_is_refused() {
     let cell = cell();
     let options = CollectOptions::new(2, cell.rig.radius_m, 3);
     let err = plan_poses(&cell.planner(), &[0.0; 7], &options, &mut |_| {}).unwrap_err();
-    assert!(err.to_string().starts_with("poses = 2: need at least 3"), "{err}");
+    assert!(
+        err.to_string().starts_with("poses = 2: need at least 3"),
+        "{err}"
+    );
 }
 
 fn run_cell(args: &[&str]) -> anyhow::Result<std::process::ExitCode> {
@@ -396,7 +434,11 @@ fn cli_collect_solve_and_load_the_mount() {
     .unwrap();
     let config = config();
     let mount = current_base_from_camera(&config, &result);
-    assert!(matches!(mount.source, MountSource::Calibrated { .. }), "{:?}", mount.source);
+    assert!(
+        matches!(mount.source, MountSource::Calibrated { .. }),
+        "{:?}",
+        mount.source
+    );
     let nominal = config.base_from_camera();
     let e = pose_from_params(&error);
     let truth = Isometry3::from_parts(
@@ -435,7 +477,10 @@ fn cli_collect_refuses_hardware_backends() {
     let err = graspcell::cli::run(graspcell::cli::Cli::try_parse_from(argv).unwrap())
         .unwrap_err()
         .to_string();
-    assert!(err.contains("camera.backend = \"replay\"") && err.contains("set both to \"sim\""), "{err}");
+    assert!(
+        err.contains("camera.backend = \"replay\"") && err.contains("set both to \"sim\""),
+        "{err}"
+    );
     assert!(!out.exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -297,7 +297,9 @@ impl CollectOptions {
             ));
         }
         for i in 0..3 {
-            if !(self.region_min_m[i] < self.region_max_m[i]) {
+            if self.region_min_m[i].partial_cmp(&self.region_max_m[i])
+                != Some(std::cmp::Ordering::Less)
+            {
                 return Err(bad(
                     "region",
                     format!("{:?}..{:?}", self.region_min_m, self.region_max_m),
@@ -603,7 +605,10 @@ impl Checker<'_> {
     fn visible(&self, poses: &[Pose], centre: &Point3<f64>) -> bool {
         let eye = Point3::from(self.camera.base_from_camera.translation.vector);
         let d = (eye - centre).normalize();
-        let e1 = d.cross(&Vector3::z()).try_normalize(1e-9).unwrap_or(Vector3::x());
+        let e1 = d
+            .cross(&Vector3::z())
+            .try_normalize(1e-9)
+            .unwrap_or(Vector3::x());
         let e2 = d.cross(&e1);
         let r = self.rig.radius_m;
         let a = VISIBILITY_RING_DEG.to_radians();
@@ -612,9 +617,7 @@ impl Checker<'_> {
             let b = std::f64::consts::TAU * k as f64 / 8.0;
             points.push(centre + (d * a.cos() + (e1 * b.cos() + e2 * b.sin()) * a.sin()) * r);
         }
-        !points
-            .iter()
-            .any(|p| self.geometry.blocks(poses, &eye, p))
+        !points.iter().any(|p| self.geometry.blocks(poses, &eye, p))
     }
 
     /// Whether the robot at `q` is free of collisions, the sphere included.
@@ -636,7 +639,9 @@ impl Checker<'_> {
 
     /// Whether the straight joint-space move from `a` to `b` is collision-free.
     fn path_clear(&self, a: &ArmJoints, b: &ArmJoints) -> bool {
-        let span = (0..ARM_DOF).map(|i| (b[i] - a[i]).abs()).fold(0.0, f64::max);
+        let span = (0..ARM_DOF)
+            .map(|i| (b[i] - a[i]).abs())
+            .fold(0.0, f64::max);
         let steps = (span / self.options.max_joint_step_rad).ceil().max(1.0) as usize;
         (1..=steps).all(|s| {
             let t = s as f64 / steps as f64;
@@ -679,13 +684,13 @@ impl Checker<'_> {
                 break p;
             }
         };
-        let facing = UnitQuaternion::from_axis_angle(
-            &nalgebra::Unit::new_normalize(d.cross(&perp)),
-            tilt,
-        ) * d;
+        let facing =
+            UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(d.cross(&perp)), tilt)
+                * d;
         let outward = self.rig.flange_from_centre_m.normalize();
-        let align = UnitQuaternion::rotation_between(&outward, &facing)
-            .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI));
+        let align = UnitQuaternion::rotation_between(&outward, &facing).unwrap_or_else(|| {
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+        });
         let roll = UnitQuaternion::from_axis_angle(
             &nalgebra::Unit::new_normalize(facing),
             rng.gen_range(-std::f64::consts::PI..std::f64::consts::PI),
@@ -731,13 +736,14 @@ pub struct PlannerCell<'a> {
 impl<'a> PlannerCell<'a> {
     fn checker(&self, options: &'a CollectOptions) -> Result<Checker<'a>, CollectError> {
         let robot = self.robot;
-        let flange_index = robot.description.link_index(self.flange_link).ok_or_else(|| {
-            CollectError::BadOption {
+        let flange_index = robot
+            .description
+            .link_index(self.flange_link)
+            .ok_or_else(|| CollectError::BadOption {
                 option: "robot.flange_link",
                 value: self.flange_link.to_string(),
                 problem: "is not a link of the URDF".into(),
-            }
-        })?;
+            })?;
         let (flange0, palm0) = robot.arm().flange_and_palm(&[0.0; ARM_DOF]);
         Ok(Checker {
             geometry: RobotGeometry::new(robot, flange_index),
@@ -762,7 +768,7 @@ pub fn check_configuration(
     checker
         .check_joints(joints)
         .map(|(_, centre)| centre)
-        .map_err(|r| CollectError::Rejected(r))
+        .map_err(CollectError::Rejected)
 }
 
 /// Draws candidates, keeps the feasible ones, chooses `options.poses` diverse ones
@@ -851,7 +857,9 @@ pub fn plan_poses(
     let mut order = Vec::with_capacity(left.len());
     let mut at = *start;
     let distance = |a: &ArmJoints, b: &ArmJoints| {
-        (0..ARM_DOF).map(|i| (a[i] - b[i]).abs()).fold(0.0, f64::max)
+        (0..ARM_DOF)
+            .map(|i| (a[i] - b[i]).abs())
+            .fold(0.0, f64::max)
     };
     while !left.is_empty() {
         let (k, _) = left
@@ -1076,15 +1084,25 @@ mod tests {
         let flanges: Vec<Pose> = (0..6)
             .map(|k| {
                 Isometry3::from_parts(
-                    Translation3::new(0.1 * k as f64, 0.02 * (k * k) as f64, 0.03 * k as f64 % 0.07),
+                    Translation3::new(
+                        0.1 * k as f64,
+                        0.02 * (k * k) as f64,
+                        0.03 * k as f64 % 0.07,
+                    ),
                     rotation(Vector3::z(), 20.0 * k as f64),
                 )
             })
             .collect();
-        let centres: Vec<Point3<f64>> = flanges.iter().map(|f| Point3::from(f.translation.vector)).collect();
+        let centres: Vec<Point3<f64>> = flanges
+            .iter()
+            .map(|f| Point3::from(f.translation.vector))
+            .collect();
         let d = diversity(&flanges, &centres);
         assert!(d.axis_spread_deg < 1e-6, "{d:?}");
-        assert!(d.rotation_rms_deg[1] < 1e-6 && d.rotation_rms_deg[0] > 20.0, "{d:?}");
+        assert!(
+            d.rotation_rms_deg[1] < 1e-6 && d.rotation_rms_deg[0] > 20.0,
+            "{d:?}"
+        );
     }
 
     /// From a pool where most rotations turn about z and the last ten about x or y,
@@ -1105,7 +1123,9 @@ mod tests {
                 Vector3::y()
             };
             rotations.push(rotation(axis, rng.gen_range(-60.0..60.0)));
-            centres.push(Point3::from(Vector3::from_fn(|_, _| rng.gen_range(-0.2..0.2))));
+            centres.push(Point3::from(Vector3::from_fn(|_, _| {
+                rng.gen_range(-0.2..0.2)
+            })));
         }
         let n = 10;
         let chosen = select_diverse(&rotations, &centres, n);
@@ -1147,7 +1167,10 @@ mod tests {
             greedy.rotation_rms_deg[2],
             random[95]
         );
-        assert!(chosen.iter().filter(|&&i| i >= 50).count() >= 2, "{chosen:?}");
+        assert!(
+            chosen.iter().filter(|&&i| i >= 50).count() >= 2,
+            "{chosen:?}"
+        );
         assert!(greedy.axis_spread_deg > 45.0, "{greedy:?}");
     }
 }

@@ -64,7 +64,10 @@ pub fn current_base_from_camera(config: &CellConfig, result_path: &Path) -> Came
         }
     };
     if !result_path.exists() {
-        return fallback(format!("no calibration result at {}", result_path.display()));
+        return fallback(format!(
+            "no calibration result at {}",
+            result_path.display()
+        ));
     }
     let result = match HandEyeResult::load(result_path) {
         Ok(r) => r,
@@ -72,12 +75,7 @@ pub fn current_base_from_camera(config: &CellConfig, result_path: &Path) -> Came
     };
     let pose = match result.base_from_camera() {
         Ok(p) => p,
-        Err(e) => {
-            return fallback(format!(
-                "{}: base_from_camera: {e}",
-                result_path.display()
-            ))
-        }
+        Err(e) => return fallback(format!("{}: base_from_camera: {e}", result_path.display())),
     };
     let (dp, dr) = pose_error(&pose, &nominal);
     let from_nominal_mm_deg = (dp * 1e3, dr.to_degrees());

@@ -50,7 +50,12 @@ pub fn uv_sphere(r: f64, rings: usize, segments: usize) -> TriMesh {
     }
     for i in 1..rings - 1 {
         for j in 0..segments {
-            let (a, b, c, d) = (ring(i, j), ring(i, j + 1), ring(i + 1, j + 1), ring(i + 1, j));
+            let (a, b, c, d) = (
+                ring(i, j),
+                ring(i, j + 1),
+                ring(i + 1, j + 1),
+                ring(i + 1, j),
+            );
             triangles.push([a, d, c]);
             triangles.push([a, c, b]);
         }
@@ -370,12 +375,18 @@ mod tests {
             let mesh = primitive_mesh(&primitive);
             assert!(is_watertight(&mesh), "{primitive:?}");
             let v = signed_volume(&mesh);
-            assert!(((v - volume) / volume).abs() < rel, "{primitive:?}: {v} vs {volume}");
+            assert!(
+                ((v - volume) / volume).abs() < rel,
+                "{primitive:?}: {v} vs {volume}"
+            );
         }
         let fine = uv_sphere(0.04, 48, 96);
         assert!(is_watertight(&fine));
         // Every vertex on the sphere; faceting keeps the faces within 0.05 mm of it.
-        assert!(fine.vertices.iter().all(|v| (v.coords.norm() - 0.04).abs() < 1e-12));
+        assert!(fine
+            .vertices
+            .iter()
+            .all(|v| (v.coords.norm() - 0.04).abs() < 1e-12));
         let v = signed_volume(&fine);
         assert!((v - 4.0 / 3.0 * PI * 0.04f64.powi(3)) / v < 0.005);
     }

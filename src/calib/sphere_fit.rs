@@ -89,7 +89,8 @@ pub fn free_radius_fit(points: &[Point3<f64>]) -> Option<(Point3<f64>, f64)> {
     }
     let svd = ata.svd(true, true);
     let max = svd.singular_values.max();
-    if !(svd.singular_values.min() > 1e-12 * max) {
+    let min = svd.singular_values.min();
+    if min.is_nan() || min <= 1e-12 * max {
         return None;
     }
     let x = svd.solve(&atb, 0.0).ok()?;
@@ -136,10 +137,7 @@ pub enum SphereFitError {
 /// The centres of the spheres of radius `r` through three points, the one farther
 /// from the origin (camera) first; `None` when the points are (nearly) collinear or
 /// their circumcircle is wider than the sphere.
-pub fn sphere_centres_through(
-    p: [&Point3<f64>; 3],
-    r: f64,
-) -> Option<(Point3<f64>, Point3<f64>)> {
+pub fn sphere_centres_through(p: [&Point3<f64>; 3], r: f64) -> Option<(Point3<f64>, Point3<f64>)> {
     let a = p[0] - p[2];
     let b = p[1] - p[2];
     let axb = a.cross(&b);
@@ -220,8 +218,7 @@ pub fn fit_sphere(
         let j = rng.gen_range(0..points.len());
         let k = rng.gen_range(0..points.len());
         let (a, b, c) = (&points[i], &points[j], &points[k]);
-        if (a - b).norm() < min_side || (b - c).norm() < min_side || (a - c).norm() < min_side
-        {
+        if (a - b).norm() < min_side || (b - c).norm() < min_side || (a - c).norm() < min_side {
             continue;
         }
         let Some((centre, _)) = sphere_centres_through([a, b, c], r) else {
@@ -264,7 +261,8 @@ pub fn fit_sphere(
         return Err(not_found(inliers.len()));
     }
     let free_radius_mm = free_radius_fit(&inliers).map_or(f64::INFINITY, |(_, r)| r * 1e3);
-    if !((free_radius_mm * 1e-3 - r).abs() <= options.max_radius_error * r) {
+    let radius_error = (free_radius_mm * 1e-3 - r).abs();
+    if radius_error.is_nan() || radius_error > options.max_radius_error * r {
         return Err(SphereFitError::WrongShape {
             radius_mm: r * 1e3,
             free_radius_mm,
@@ -348,9 +346,17 @@ mod tests {
         assert!((far - c).norm() < 1e-12, "{far} vs {c}");
         assert!(near.coords.norm() < far.coords.norm());
         // Collinear points and a too-wide circle have no sphere.
-        let line = [Point3::new(0.0, 0.0, 1.0), Point3::new(0.01, 0.0, 1.0), Point3::new(0.02, 0.0, 1.0)];
+        let line = [
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(0.01, 0.0, 1.0),
+            Point3::new(0.02, 0.0, 1.0),
+        ];
         assert!(sphere_centres_through([&line[0], &line[1], &line[2]], r).is_none());
-        let wide = [Point3::new(-0.1, 0.0, 1.0), Point3::new(0.1, 0.0, 1.0), Point3::new(0.0, 0.1, 1.0)];
+        let wide = [
+            Point3::new(-0.1, 0.0, 1.0),
+            Point3::new(0.1, 0.0, 1.0),
+            Point3::new(0.0, 0.1, 1.0),
+        ];
         assert!(sphere_centres_through([&wide[0], &wide[1], &wide[2]], r).is_none());
     }
 

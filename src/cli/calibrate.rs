@@ -1,31 +1,31 @@
 //! `cell calibrate ...` (hand–eye calibration) and `cell bench calib`.
 
 use super::bench::{median, CalibBenchArgs};
+use crate::calib::collect::{
+    plan_poses, run_collection, ArmMover, CameraPrior, CollectOptions, Diversity, PlannerCell,
+    Progress, Rejections, TargetFound, TargetRig,
+};
+use crate::calib::sim_rig::{simulated_rig, SimTruth};
 use crate::calib::synthetic::{point_samples, pose_samples, Noise, SyntheticScene};
 use crate::calib::{
     daniilidis, fit_target, kabsch, park_martin, point_solver, refine, solve, tsai_lenz,
     Conditioning, HandEye, HandEyeResult, Method, ResidualStats, Sample, SampleFile,
     SampleResidual, Solution, SolveOptions, Weights,
 };
-use crate::calib::collect::{
-    plan_poses, run_collection, ArmMover, CameraPrior, CollectOptions, Diversity, PlannerCell, Progress,
-    Rejections, TargetFound, TargetRig,
-};
-use crate::calib::sim_rig::{simulated_rig, SimTruth};
 use crate::config::CellConfig;
 use crate::geometry::{matrix_rows, parse_numbers, pose_error, pose_from_params, PoseJson};
 use crate::robot::Robot;
 use crate::sim::camera::Intrinsics;
-use nalgebra::{Isometry3, Translation3};
-use std::path::Path;
-use std::sync::Arc;
 use anyhow::Context;
 use clap::{Args, Subcommand};
+use nalgebra::{Isometry3, Translation3};
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 use std::fmt::Write as _;
+use std::path::Path;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 /// The calibration subcommands.
@@ -222,12 +222,7 @@ fn collect_command(config_path: &Path, args: CollectArgs) -> anyhow::Result<Exit
         rig: &rig,
         table: &config.table,
     };
-    let plan = plan_poses(
-        &cell,
-        &start,
-        &options,
-        &mut |p| update_bar(&bar, p),
-    )?;
+    let plan = plan_poses(&cell, &start, &options, &mut |p| update_bar(&bar, p))?;
     let plan_s = started.elapsed().as_secs_f64();
     tracing::info!(
         poses = plan.poses.len(),
@@ -321,12 +316,7 @@ fn human_collect(r: &CollectReport) -> String {
     let _ = writeln!(
         s,
         "planned {} poses (of {} requested) from {} feasible of {} candidates ({}) in {:.1} s",
-        r.poses_planned,
-        r.poses_requested,
-        r.feasible,
-        r.candidates,
-        r.rejections,
-        r.plan_s
+        r.poses_planned, r.poses_requested, r.feasible, r.candidates, r.rejections, r.plan_s
     );
     let d = &r.planned_diversity;
     let _ = writeln!(
