@@ -164,7 +164,7 @@ pub struct TargetRig {
 
 impl TargetRig {
     /// A 40 mm sphere 14 cm out along the approach axis and 10 cm to the side (palm
-    /// +x, between the open fingers, which lie along ±y), on a 6 mm stalk from the
+    /// +x, clear of the open fingers, which lie along ±y), on a 6 mm stalk from the
     /// palm's side: seen from the camera's side of the hand, the hand is behind it.
     pub fn standard() -> TargetRig {
         TargetRig {

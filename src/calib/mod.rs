@@ -105,8 +105,18 @@
 //! # Result file (`calib/hand_eye.toml`)
 //!
 //! [`HandEyeResult`]: date, method, samples file, residual statistics and
-//! `base_from_camera` as `{xyz, rpy, quat_xyzw}`; perception loads it at start with
-//! [`HandEyeResult::load`].
+//! `base_from_camera` as `{xyz, rpy, quat_xyzw}`. Perception gets its camera mount
+//! from [`current_base_from_camera`]: this file's pose when it is present and valid
+//! (logged with its date and method), else the configuration's nominal mount with a
+//! warning.
+//!
+//! # Collecting samples (`cell calibrate collect`)
+//!
+//! [`collect`] chooses diverse, reachable poses that show a sphere on the hand to
+//! the camera, moves through them ([`collect::ArmMover`]), captures
+//! ([`collect::TargetCamera`]), finds the sphere centre by RANSAC and least squares
+//! ([`sphere_fit`]) and returns point samples. [`sim_rig`] simulates the arm, the
+//! sphere and the depth camera at a true mount the solver is not told.
 
 pub mod collect;
 mod current;
