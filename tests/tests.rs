@@ -1,6 +1,7 @@
 //! Integration and hardware-in-loop tests, built as one binary (one link step).
 
 mod calib;
+mod calib_collect;
 mod camera;
 mod can;
 mod fri;

@@ -105,9 +105,21 @@
 //! # Result file (`calib/hand_eye.toml`)
 //!
 //! [`HandEyeResult`]: date, method, samples file, residual statistics and
-//! `base_from_camera` as `{xyz, rpy, quat_xyzw}`; perception loads it at start with
-//! [`HandEyeResult::load`].
+//! `base_from_camera` as `{xyz, rpy, quat_xyzw}`. Perception gets its camera mount
+//! from [`current_base_from_camera`]: this file's pose when it is present and valid
+//! (logged with its date and method), else the configuration's nominal mount with a
+//! warning.
+//!
+//! # Collecting samples (`cell calibrate collect`)
+//!
+//! [`collect`] chooses diverse, reachable poses that show a sphere on the hand to
+//! the camera, moves through them ([`collect::ArmMover`]), captures
+//! ([`collect::TargetCamera`]), finds the sphere centre by RANSAC and least squares
+//! ([`sphere_fit`]) and returns point samples. [`sim_rig`] simulates the arm, the
+//! sphere and the depth camera at a true mount the solver is not told.
 
+pub mod collect;
+mod current;
 mod daniilidis;
 mod lm;
 mod motions;
@@ -116,11 +128,14 @@ mod refine;
 mod residuals;
 mod result_file;
 mod samples;
+pub mod sim_rig;
 mod so3;
 mod solve;
+pub mod sphere_fit;
 pub mod synthetic;
 mod tsai_park;
 
+pub use current::{current_base_from_camera, CameraMount, MountSource, DEFAULT_RESULT_PATH};
 pub use daniilidis::daniilidis;
 pub use motions::{
     check_frames, check_motions, measure_motions, Conditioning, MIN_AXIS_SPREAD_DEG,

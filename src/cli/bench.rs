@@ -54,6 +54,9 @@ pub struct CalibBenchArgs {
     /// Seed of the synthetic samples.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Simulated collections (plan + capture of --samples poses) timed; 0 skips them.
+    #[arg(long, default_value_t = 3)]
+    pub collect_repeats: usize,
     /// Print JSON (always JSON; accepted for uniformity).
     #[arg(long)]
     pub json: bool,
@@ -94,7 +97,7 @@ pub struct QualityMetricBenchArgs {
 pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
     match which {
         BenchCommand::Ik(args) => super::robot::bench_ik(config, args),
-        BenchCommand::Calib(args) => super::calibrate::bench_calib(args),
+        BenchCommand::Calib(args) => super::calibrate::bench_calib(config, args),
         BenchCommand::Render(args) => super::camera::bench_render(config, args),
         BenchCommand::Fri(args) => super::fri::bench_fri(config, args),
         BenchCommand::Can(args) => super::can::bench(args),

@@ -1,25 +1,39 @@
 //! `cell calibrate ...` (hand–eye calibration) and `cell bench calib`.
 
 use super::bench::{median, CalibBenchArgs};
+use crate::calib::collect::{
+    plan_poses, run_collection, ArmMover, CameraPrior, CollectOptions, Diversity, PlannerCell,
+    Progress, Rejections, TargetFound, TargetRig,
+};
+use crate::calib::sim_rig::{simulated_rig, SimTruth};
 use crate::calib::synthetic::{point_samples, pose_samples, Noise, SyntheticScene};
 use crate::calib::{
     daniilidis, fit_target, kabsch, park_martin, point_solver, refine, solve, tsai_lenz,
     Conditioning, HandEye, HandEyeResult, Method, ResidualStats, Sample, SampleFile,
     SampleResidual, Solution, SolveOptions, Weights,
 };
-use crate::geometry::{matrix_rows, parse_numbers, PoseJson};
+use crate::config::CellConfig;
+use crate::geometry::{matrix_rows, parse_numbers, pose_error, pose_from_params, PoseJson};
+use crate::robot::Robot;
+use crate::sim::camera::Intrinsics;
 use anyhow::Context;
 use clap::{Args, Subcommand};
+use nalgebra::{Isometry3, Translation3};
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 use std::fmt::Write as _;
+use std::path::Path;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 /// The calibration subcommands.
 #[derive(Debug, Subcommand)]
 pub enum CalibrateCommand {
+    /// Move the arm through diverse poses chosen automatically, find the calibration
+    /// sphere in the depth cloud at each, and write the samples (simulation for now).
+    Collect(CollectArgs),
     /// Solve base_from_camera from a sample file; print residuals and the method
     /// comparison; write calib/hand_eye.toml.
     Solve(SolveArgs),
@@ -53,11 +67,301 @@ pub struct SolveArgs {
     pub json: bool,
 }
 
+/// Options of `cell calibrate collect`.
+#[derive(Debug, Args)]
+pub struct CollectArgs {
+    /// Number of poses to visit (10–30 are typical; the solver needs at least 5
+    /// usable ones with the sphere's offset unknown).
+    #[arg(long, default_value_t = 25)]
+    pub poses: usize,
+    /// Sample file to write (atomically); default calib/samples-<UTC date-time>.json.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Seed of the pose draw, the sphere fit and the simulated sensor noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Radius of the calibration sphere (m).
+    #[arg(long, default_value_t = 0.04)]
+    pub sphere_radius: f64,
+    /// The sphere centre's nominal position in the flange frame x,y,z (m); used to
+    /// plan poses and to look for the sphere, not by the solver.
+    #[arg(long, allow_hyphen_values = true, default_value = "0.10,0.0,0.14")]
+    pub target_in_flange: String,
+    /// Simulation: the camera's true mount is the configured one moved by this,
+    /// x,y,z,roll,pitch,yaw (m, rad; base frame), so that the calibration has
+    /// something to find.
+    #[arg(long, allow_hyphen_values = true)]
+    pub sim_camera_error: Option<String>,
+    /// Simulation: the sphere's true centre is the nominal one moved by x,y,z (m).
+    #[arg(long, allow_hyphen_values = true)]
+    pub sim_target_error: Option<String>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
 /// Runs one calibration subcommand.
-pub fn run(which: CalibrateCommand) -> anyhow::Result<ExitCode> {
+pub fn run(config: &Path, which: CalibrateCommand) -> anyhow::Result<ExitCode> {
     match which {
+        CalibrateCommand::Collect(args) => collect_command(config, args),
         CalibrateCommand::Solve(args) => solve_command(args),
     }
+}
+
+/// One visited pose in the collect report.
+#[derive(Debug, Serialize)]
+struct CaptureRow {
+    pose: usize,
+    via_home: bool,
+    joints_rad: [f64; 7],
+    base_from_flange: PoseJson,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    found: Option<TargetFound>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    skipped: Option<String>,
+}
+
+/// The simulation's truth, for comparing with `cell calibrate solve`.
+#[derive(Debug, Serialize)]
+struct SimulationReport {
+    nominal_base_from_camera: PoseJson,
+    true_base_from_camera: PoseJson,
+    true_from_nominal_mm: f64,
+    true_from_nominal_deg: f64,
+    true_target_in_flange_m: [f64; 3],
+}
+
+/// What `cell calibrate collect` prints.
+#[derive(Debug, Serialize)]
+struct CollectReport {
+    samples_file: String,
+    seed: u64,
+    poses_requested: usize,
+    poses_planned: usize,
+    usable_samples: usize,
+    candidates: usize,
+    feasible: usize,
+    rejections: Rejections,
+    planned_diversity: Diversity,
+    sample_diversity: Diversity,
+    sphere_radius_m: f64,
+    nominal_target_in_flange_m: [f64; 3],
+    captures: Vec<CaptureRow>,
+    simulation: SimulationReport,
+    plan_s: f64,
+    capture_s: f64,
+    next: String,
+}
+
+fn collect_command(config_path: &Path, args: CollectArgs) -> anyhow::Result<ExitCode> {
+    let config = CellConfig::load(config_path)?;
+    anyhow::ensure!(
+        config.camera.backend == "sim" && config.fri.backend == "sim",
+        "{}: camera.backend = {:?}, fri.backend = {:?}: `cell calibrate collect` drives only the simulated arm and camera so far (the hardware ArmMover and TargetCamera are not written yet); set both to \"sim\"",
+        config_path.display(),
+        config.camera.backend,
+        config.fri.backend
+    );
+    anyhow::ensure!(
+        args.sphere_radius.is_finite() && args.sphere_radius > 0.0,
+        "--sphere-radius {}: must be a finite number > 0 (m)",
+        args.sphere_radius
+    );
+    let v = parse_numbers(&args.target_in_flange, 3, "--target-in-flange x,y,z")?;
+    let rig = TargetRig {
+        radius_m: args.sphere_radius,
+        flange_from_centre_m: Vector3::new(v[0], v[1], v[2]),
+        ..TargetRig::standard()
+    };
+    let nominal = config.base_from_camera();
+    let true_camera = match &args.sim_camera_error {
+        Some(text) => {
+            let e = parse_numbers(text, 6, "--sim-camera-error x,y,z,roll,pitch,yaw")?;
+            let e = pose_from_params(&[e[0], e[1], e[2], e[3], e[4], e[5]]);
+            Isometry3::from_parts(
+                Translation3::from(nominal.translation.vector + e.translation.vector),
+                e.rotation * nominal.rotation,
+            )
+        }
+        None => nominal,
+    };
+    let true_rig = match &args.sim_target_error {
+        Some(text) => {
+            let e = parse_numbers(text, 3, "--sim-target-error x,y,z")?;
+            rig.with_centre(rig.flange_from_centre_m + Vector3::new(e[0], e[1], e[2]))
+        }
+        None => rig,
+    };
+    let robot = Arc::new(Robot::load(&config)?);
+    let prior = CameraPrior {
+        intrinsics: Intrinsics::from(&config.camera),
+        base_from_camera: nominal,
+    };
+    let options = CollectOptions::new(args.poses, rig.radius_m, args.seed);
+    let truth = SimTruth {
+        base_from_camera: true_camera,
+        rig: true_rig,
+    };
+    let (mut arm, mut camera) = simulated_rig(
+        &config,
+        Arc::clone(&robot),
+        &truth,
+        options.hand,
+        options.home,
+        args.seed,
+    )?;
+    let start = arm.joints(options.capture_timeout_s)?;
+
+    let bar = indicatif::ProgressBar::new(options.max_candidates as u64);
+    bar.set_message("planning poses");
+    let started = Instant::now();
+    let cell = PlannerCell {
+        robot: &robot,
+        flange_link: &config.robot.flange_link,
+        camera: &prior,
+        rig: &rig,
+        table: &config.table,
+    };
+    let plan = plan_poses(&cell, &start, &options, &mut |p| update_bar(&bar, p))?;
+    let plan_s = started.elapsed().as_secs_f64();
+    tracing::info!(
+        poses = plan.poses.len(),
+        feasible = plan.feasible,
+        candidates = plan.candidates,
+        "planned"
+    );
+    bar.set_length(plan.poses.len() as u64);
+    bar.set_position(0);
+    bar.set_message("capturing");
+    let started = Instant::now();
+    let collection = run_collection(
+        &plan,
+        &mut arm,
+        &mut camera,
+        &prior,
+        &rig,
+        &options,
+        &mut |p| update_bar(&bar, p),
+    )?;
+    let capture_s = started.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+
+    let created = utc_now_rfc3339();
+    let out = args.out.clone().unwrap_or_else(|| {
+        PathBuf::from(format!("calib/samples-{}.json", created.replace(':', "-")))
+    });
+    let file = SampleFile {
+        created,
+        comment: Some(format!(
+            "cell calibrate collect: simulation, seed {}, {} poses, sphere radius {} m, nominal centre in flange {:?} m",
+            args.seed,
+            plan.poses.len(),
+            rig.radius_m,
+            v
+        )),
+        samples: collection.samples.iter().copied().map(Sample::Point).collect(),
+    };
+    file.save(&out)?;
+    let samples_file = out.display().to_string();
+    let (dp, dr) = pose_error(&true_camera, &nominal);
+    let report = CollectReport {
+        next: format!("cell calibrate solve --samples {samples_file} --method points"),
+        samples_file,
+        seed: args.seed,
+        poses_requested: args.poses,
+        poses_planned: plan.poses.len(),
+        usable_samples: collection.samples.len(),
+        candidates: plan.candidates,
+        feasible: plan.feasible,
+        rejections: plan.rejections,
+        planned_diversity: plan.diversity,
+        sample_diversity: collection.diversity,
+        sphere_radius_m: rig.radius_m,
+        nominal_target_in_flange_m: rig.flange_from_centre_m.into(),
+        captures: collection
+            .captures
+            .iter()
+            .map(|c| CaptureRow {
+                pose: c.pose,
+                via_home: plan.poses[c.pose].via_home,
+                joints_rad: c.joints,
+                base_from_flange: PoseJson::from(&c.base_from_flange),
+                found: c.outcome.as_ref().ok().copied(),
+                skipped: c.outcome.as_ref().err().map(|e| e.to_string()),
+            })
+            .collect(),
+        simulation: SimulationReport {
+            nominal_base_from_camera: PoseJson::from(&nominal),
+            true_base_from_camera: PoseJson::from(&true_camera),
+            true_from_nominal_mm: dp * 1e3,
+            true_from_nominal_deg: dr.to_degrees(),
+            true_target_in_flange_m: true_rig.flange_from_centre_m.into(),
+        },
+        plan_s,
+        capture_s,
+    };
+    super::emit(args.json, &report, human_collect)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn update_bar(bar: &indicatif::ProgressBar, progress: Progress) {
+    match progress {
+        Progress::Planning { drawn, .. } => bar.set_position(drawn as u64),
+        Progress::Capturing { done, .. } => bar.set_position(done as u64),
+    }
+}
+
+fn human_collect(r: &CollectReport) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "planned {} poses (of {} requested) from {} feasible of {} candidates ({}) in {:.1} s",
+        r.poses_planned, r.poses_requested, r.feasible, r.candidates, r.rejections, r.plan_s
+    );
+    let d = &r.planned_diversity;
+    let _ = writeln!(
+        s,
+        "diversity: rotation axis spread {:.1}°, RMS relative rotation about the principal axes {:.1}° / {:.1}° / {:.1}°, median pair rotation {:.1}°, sphere centres spread {:.0} / {:.0} / {:.0} mm",
+        d.axis_spread_deg,
+        d.rotation_rms_deg[0],
+        d.rotation_rms_deg[1],
+        d.rotation_rms_deg[2],
+        d.median_pair_rotation_deg,
+        d.position_spread_m[0] * 1e3,
+        d.position_spread_m[1] * 1e3,
+        d.position_spread_m[2] * 1e3
+    );
+    let _ = writeln!(
+        s,
+        "captured {} usable samples of {} poses in {:.1} s",
+        r.usable_samples, r.poses_planned, r.capture_s
+    );
+    let _ = writeln!(s, "  pose  inliers  rms_mm  coverage  from_expected_mm");
+    for c in &r.captures {
+        match (&c.found, &c.skipped) {
+            (Some(f), _) => {
+                let _ = writeln!(
+                    s,
+                    "  {:>4}  {:>7}  {:>6.2}  {:>8.2}  {:>16.1}",
+                    c.pose, f.inliers, f.rms_mm, f.coverage, f.from_expected_mm
+                );
+            }
+            (None, Some(why)) => {
+                let _ = writeln!(s, "  {:>4}  skipped: {why}", c.pose);
+            }
+            (None, None) => {}
+        }
+    }
+    let sim = &r.simulation;
+    let _ = writeln!(
+        s,
+        "simulation: true camera mount {:.1} mm / {:.2}° from the nominal one; true sphere centre in flange {} m",
+        sim.true_from_nominal_mm,
+        sim.true_from_nominal_deg,
+        fmt3(&sim.true_target_in_flange_m)
+    );
+    let _ = writeln!(s, "wrote {}\nnext: {}", r.samples_file, r.next);
+    s
 }
 
 /// One method's line in the comparison.
@@ -330,10 +634,104 @@ struct BenchReport {
     seed: u64,
     baseline: &'static str,
     results: Vec<BenchRow>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    collect: Option<CollectBench>,
 }
 
-/// Runs `cell bench calib`: median solve time of each method on synthetic samples.
-pub fn bench_calib(args: CalibBenchArgs) -> anyhow::Result<ExitCode> {
+/// The simulated collection's timing in `cell bench calib`.
+#[derive(Debug, Serialize)]
+struct CollectBench {
+    workload: String,
+    repeats: usize,
+    plan_ms_median: f64,
+    capture_ms_per_pose_median: f64,
+    render_ms_median: f64,
+    capture_ratio_to_render: f64,
+    usable_samples_min: usize,
+}
+
+/// Times `repeats` simulated collections of `poses` poses (seeds `seed..`): the
+/// planning, the capture with sphere fit per pose, and a bare render of the same
+/// scene as the baseline.
+fn bench_collect(
+    config_path: &Path,
+    poses: usize,
+    repeats: usize,
+    seed: u64,
+) -> anyhow::Result<CollectBench> {
+    let config = CellConfig::load(config_path)?;
+    let robot = Arc::new(Robot::load(&config)?);
+    let rig = TargetRig::standard();
+    let prior = CameraPrior {
+        intrinsics: Intrinsics::from(&config.camera),
+        base_from_camera: config.base_from_camera(),
+    };
+    let cell = PlannerCell {
+        robot: &robot,
+        flange_link: &config.robot.flange_link,
+        camera: &prior,
+        rig: &rig,
+        table: &config.table,
+    };
+    let truth = SimTruth {
+        base_from_camera: prior.base_from_camera,
+        rig,
+    };
+    let (mut plan_ms, mut capture_ms, mut render_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let mut usable_min = usize::MAX;
+    let bar = indicatif::ProgressBar::new(repeats as u64);
+    for r in 0..repeats as u64 {
+        let options = CollectOptions::new(poses, rig.radius_m, seed + r);
+        let (mut arm, mut camera) = simulated_rig(
+            &config,
+            Arc::clone(&robot),
+            &truth,
+            options.hand,
+            options.home,
+            seed + r,
+        )?;
+        let start = Instant::now();
+        let plan = plan_poses(&cell, &options.home, &options, &mut |_| {})?;
+        plan_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        let start = Instant::now();
+        let collection = run_collection(
+            &plan,
+            &mut arm,
+            &mut camera,
+            &prior,
+            &rig,
+            &options,
+            &mut |_| {},
+        )?;
+        capture_ms.push(start.elapsed().as_secs_f64() * 1e3 / plan.poses.len().max(1) as f64);
+        usable_min = usable_min.min(collection.samples.len());
+        let start = Instant::now();
+        camera.frame();
+        render_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let capture = median(&mut capture_ms);
+    let render = median(&mut render_ms);
+    Ok(CollectBench {
+        workload: format!(
+            "simulated collection of {poses} poses (sphere on the hand, Kinect noise, {}x{} px), seeds {seed}..{}; plan = candidate draw + IK + checks + greedy selection; capture = move + render + sphere fit per pose; baseline: one render of the same scene",
+            config.camera.width_px,
+            config.camera.height_px,
+            seed + repeats as u64 - 1
+        ),
+        repeats,
+        plan_ms_median: median(&mut plan_ms),
+        capture_ms_per_pose_median: capture,
+        render_ms_median: render,
+        capture_ratio_to_render: capture / render,
+        usable_samples_min: usable_min,
+    })
+}
+
+/// Runs `cell bench calib`: median solve time of each method on synthetic samples,
+/// and the timing of simulated collections.
+pub fn bench_calib(config: &Path, args: CalibBenchArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
         args.samples >= 5,
         "--samples {}: need at least 5",
@@ -425,7 +823,18 @@ pub fn bench_calib(args: CalibBenchArgs) -> anyhow::Result<ExitCode> {
     }
     bar.finish_and_clear();
     let tsai_us = medians[0].1;
+    let collect = if args.collect_repeats > 0 {
+        Some(bench_collect(
+            config,
+            args.samples,
+            args.collect_repeats,
+            args.seed,
+        )?)
+    } else {
+        None
+    };
     let report = BenchReport {
+        collect,
         benchmark: "calib",
         workload: format!(
             "{} synthetic samples (seed {}, noise {} mm / {}° per axis), each method solved {} times; median wall time",

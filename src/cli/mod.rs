@@ -94,7 +94,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Grade(args) => trial::grade(args),
         Command::Report(args) => trial::report(args),
         Command::Log(which) => trial::log(which),
-        Command::Calibrate(which) => calibrate::run(which),
+        Command::Calibrate(which) => calibrate::run(&cli.config, which),
         Command::Objects(which) => objects::run(which),
         Command::Camera(which) => camera::run(&cli.config, which),
         Command::Quality(args) => quality::run(args),
