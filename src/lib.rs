@@ -12,6 +12,7 @@ pub mod cli;
 pub mod clock;
 pub mod cloud;
 pub mod config;
+pub mod execute;
 pub mod geometry;
 pub mod hw;
 pub mod ipc;

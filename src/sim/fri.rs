@@ -164,6 +164,18 @@ impl Default for SimConfig {
 }
 
 impl SimConfig {
+    /// Defaults with the joint position and velocity limits of `robot`'s URDF (the
+    /// seven arm joints) instead of the LBR4+ data-sheet constants.
+    pub fn from_robot(robot: &crate::robot::Robot) -> SimConfig {
+        let arm = &robot.description.variables[..JOINTS];
+        SimConfig {
+            position_min_rad: std::array::from_fn(|j| arm[j].lower_rad),
+            position_max_rad: std::array::from_fn(|j| arm[j].upper_rad),
+            velocity_limit_rad_s: std::array::from_fn(|j| arm[j].velocity_rad_s),
+            ..SimConfig::default()
+        }
+    }
+
     /// Checks every value is in range.
     pub fn validate(&self) -> Result<(), SimError> {
         let bad = |field: String, value: f64, problem| SimError::BadConfig {
@@ -1147,6 +1159,25 @@ mod tests {
         assert_eq!(sim.state(), FriState::Command);
         sim.take_events();
         (sim, t)
+    }
+
+    #[test]
+    fn limits_from_the_robot_are_the_urdf_limits_of_the_arm_joints() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(crate::config::DEFAULT_CONFIG_PATH);
+        let cell = crate::config::CellConfig::load(&path).unwrap();
+        let robot = crate::robot::Robot::load(&cell).unwrap();
+        let config = SimConfig::from_robot(&robot);
+        config.validate().unwrap();
+        // Read the URDF again, independently of the robot module.
+        let urdf = urdf_rs::read_file(&cell.robot.urdf).unwrap();
+        for (j, name) in cell.robot.arm_joints.iter().enumerate() {
+            let joint = urdf.joints.iter().find(|x| &x.name == name).unwrap();
+            assert_eq!(config.position_min_rad[j], joint.limit.lower, "{name}");
+            assert_eq!(config.position_max_rad[j], joint.limit.upper, "{name}");
+            assert_eq!(config.velocity_limit_rad_s[j], joint.limit.velocity, "{name}");
+        }
+        assert_eq!(config.cycle_s, SimConfig::default().cycle_s);
     }
 
     #[test]
