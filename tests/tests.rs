@@ -3,6 +3,7 @@
 mod calib;
 mod camera;
 mod can;
+mod execute;
 mod fri;
 mod ipc;
 mod objects;

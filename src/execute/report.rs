@@ -163,9 +163,13 @@ impl ExecutionReport {
             text += &format!("  in contact: {}\n", names.join(", "));
         }
         if let Some(h) = &self.hand_positions {
+            let counts = |s: Option<[i32; 3]>| s.map_or("-".to_string(), |s| format!("{s:?}"));
             text += &format!(
-                "  hand: fingers {:.3?} rad, spread {:.3} rad; strain {:?} (open {:?})\n",
-                h.fingers_rad, h.spread_rad, self.strain, self.strain_baseline
+                "  hand: fingers {:.3?} rad, spread {:.3} rad; strain {} (open {})\n",
+                h.fingers_rad,
+                h.spread_rad,
+                counts(self.strain),
+                counts(self.strain_baseline)
             );
         }
         if let Some(q) = &self.final_joints_rad {
