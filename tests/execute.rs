@@ -285,7 +285,10 @@ fn executor_with_emulators_in_other_processes_completes_a_grasp() {
     let log = rig.candump_log();
     for id in ["00B", "00C", "00D"] {
         let frame = format!(" {id}#9D0012000000");
-        assert!(log.lines().any(|l| l.ends_with(&frame)), "no{frame} in the log");
+        assert!(
+            log.lines().any(|l| l.ends_with(&frame)),
+            "no{frame} in the log"
+        );
     }
 }
 
@@ -434,61 +437,76 @@ fn unsafe_plans_are_refused_before_any_motion_with_the_numbers() {
     beyond.pregrasp_joints_rad[5] = -2.2;
     beyond.pregrasp = PoseJson::from(&robot.arm().palm(&beyond.pregrasp_joints_rad));
     let report = ex.execute(&beyond);
-    match report.error.as_ref().unwrap() {
-        ExecuteError::Unsafe {
-            phase: Phase::Validate,
-            source:
-                SafetyError::OutOfLimit {
-                    joint,
-                    position_rad,
-                    limit_rad,
-                    ..
-                },
+    let err = report.error.as_ref().unwrap();
+    assert_eq!(
+        (err.kind(), err.phase()),
+        ("unsafe_motion", Phase::Validate)
+    );
+    match err.safety_violation() {
+        Some(SafetyError::OutOfLimit {
+            joint,
+            position_rad,
+            limit_rad,
             ..
-        } => {
+        }) => {
             assert_eq!(joint, "lbr_a5");
             assert_eq!(*position_rad, -2.2);
             assert!((limit_rad + 2.094395 - 0.01).abs() < 1e-9, "{limit_rad}");
         }
-        other => panic!("{other}"),
+        _ => panic!("{err}"),
     }
 
     // The palm 3 cm over the table, below the 5 cm clearance.
     let low = plan(&robot, &top_down(0.6, 0.0, 0.03), &top_down(0.6, 0.0, 0.15));
     let report = ex.execute(&low);
-    match report.error.as_ref().unwrap() {
-        ExecuteError::Unsafe {
-            phase: Phase::Validate,
-            motion: "approach",
-            source: SafetyError::BelowTable {
-                palm_z_m, min_z_m, ..
-            },
-        } => {
+    let err = report.error.as_ref().unwrap();
+    assert!(
+        matches!(
+            err,
+            ExecuteError::Unsafe {
+                phase: Phase::Validate,
+                motion: "approach",
+                ..
+            }
+        ),
+        "{err}"
+    );
+    match err.safety_violation() {
+        Some(SafetyError::BelowTable {
+            palm_z_m, min_z_m, ..
+        }) => {
             assert!((palm_z_m - 0.03).abs() < 1e-3, "{palm_z_m}");
             assert_eq!(*min_z_m, 0.05);
         }
-        other => panic!("{other}"),
+        _ => panic!("{err}"),
     }
 
     // The palm at x = 0.10, behind the workspace's x >= 0.15.
-    let behind = plan(&robot, &top_down(0.10, 0.45, 0.30), &top_down(0.10, 0.45, 0.40));
+    let behind = plan(
+        &robot,
+        &top_down(0.10, 0.45, 0.30),
+        &top_down(0.10, 0.45, 0.40),
+    );
     let report = ex.execute(&behind);
-    match report.error.as_ref().unwrap() {
-        ExecuteError::Unsafe {
-            phase: Phase::Validate,
-            source:
-                SafetyError::OutsideWorkspace {
-                    palm_xyz_m, min_m, ..
-                },
-            ..
-        } => {
+    let err = report.error.as_ref().unwrap();
+    assert_eq!(
+        (err.kind(), err.phase()),
+        ("unsafe_motion", Phase::Validate)
+    );
+    match err.safety_violation() {
+        Some(SafetyError::OutsideWorkspace {
+            palm_xyz_m, min_m, ..
+        }) => {
             assert_eq!(min_m[0], 0.15);
             assert!(palm_xyz_m[0] <= 0.10 + 1e-3, "{palm_xyz_m:?}");
         }
-        other => panic!("{other}"),
+        _ => panic!("{err}"),
     }
     for p in &report.phases {
-        assert!(matches!(p.phase, Phase::ArmReady | Phase::Validate), "{p:?}");
+        assert!(
+            matches!(p.phase, Phase::ArmReady | Phase::Validate),
+            "{p:?}"
+        );
     }
     drop(ex);
     // Nothing moved: the arm process measures the start, the hand saw no frame.
@@ -510,7 +528,12 @@ fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
             &format!("urdf = {:?}", cell.robot.urdf.display().to_string()),
         )
         .replace("127.0.0.1:49938", "127.0.0.1:0")
-        .replace("\"virtual:hand\"", &format!("\"virtual:{}\"", unique("cli")));
+        .replace("cycle_s = 0.001", "cycle_s = 0.002")
+        .replace("timeout_s = 0.1", "timeout_s = 0.5")
+        .replace(
+            "\"virtual:hand\"",
+            &format!("\"virtual:{}\"", unique("cli")),
+        );
     let config = dir.join("cell.toml");
     std::fs::write(&config, text).unwrap();
     let run = |plan: &ExecutionRequest, name: &str| {
@@ -519,7 +542,11 @@ fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
         let out = Command::new(env!("CARGO_BIN_EXE_cell"))
             .arg("--config")
             .arg(&config)
-            .args(["execute", "--json", "--hold-s", "0.5", "--sim-contact-rad", "1.0,1.1,1.2"])
+            .args(["execute", "--json", "--hold-s", "0.5"])
+            .args(["--sim-contact-rad", "1.0,1.1,1.2"])
+            // Lenient link levels: a loaded machine must not drop the robot.
+            .args(["--sim-miss-rates", "0.05,0.2,0.5"])
+            .args(["--sim-consecutive-misses", "15,30"])
             .arg("--plan")
             .arg(&path)
             .stderr(Stdio::null())
@@ -535,7 +562,10 @@ fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
     let palm = &json["final_palm"]["xyz"];
     assert!((palm[2].as_f64().unwrap() - 0.30).abs() < 2e-3, "{palm}");
     let fingers = &json["hand_positions"]["fingers_rad"];
-    assert!((fingers[2].as_f64().unwrap() - 1.2).abs() < 1e-3, "{fingers}");
+    assert!(
+        (fingers[2].as_f64().unwrap() - 1.2).abs() < 1e-3,
+        "{fingers}"
+    );
 
     let mut low = good_plan(&robot);
     low.palm.xyz[2] = 0.03;

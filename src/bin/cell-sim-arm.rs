@@ -72,27 +72,10 @@ fn run(args: Args) -> anyhow::Result<()> {
         }
         None => SimConfig::default(),
     };
-    let rates = graspcell::geometry::parse_numbers(&args.miss_rates, 3, "--miss-rates")?;
-    let misses = graspcell::geometry::parse_numbers(
-        &args.consecutive_misses,
-        2,
-        "--consecutive-misses",
-    )?;
-    anyhow::ensure!(
-        misses.iter().all(|m| m.fract() == 0.0 && (0.0..=1e6).contains(m)),
-        "--consecutive-misses {}: must be whole numbers",
-        args.consecutive_misses
-    );
     let mut config = SimConfig {
         cycle_s: args.cycle_ms / 1000.0,
         tracking_time_constant_s: args.tracking_time_constant_s,
-        quality: QualityThresholds {
-            perfect_max_miss_rate: rates[0],
-            ok_max_miss_rate: rates[1],
-            bad_max_miss_rate: rates[2],
-            bad_consecutive_misses: misses[0] as u32,
-            unacceptable_consecutive_misses: misses[1] as u32,
-        },
+        quality: QualityThresholds::from_text(&args.miss_rates, &args.consecutive_misses)?,
         ..base
     };
     if let Some(text) = &args.initial_joints {

@@ -12,7 +12,7 @@ use crate::hw::can::{open_bus, open_bus_logged, parse_interface, InterfaceKind};
 use crate::hw::fri::{DriverConfig, FriDriver, JOINTS};
 use crate::hw::hand::{Hand, HandTiming};
 use crate::robot::Robot;
-use crate::sim::fri::{spawn_udp, SimConfig};
+use crate::sim::fri::{spawn_udp, QualityThresholds, SimConfig};
 use crate::sim::puck::{HandEmulator, HandEmulatorConfig};
 use anyhow::Context;
 use clap::Args;
@@ -34,12 +34,24 @@ pub struct ExecuteArgs {
     #[arg(long)]
     pub external_sims: bool,
     /// Joints A1,A2,E1,A3,A4,A5,A6 (rad) the in-process arm simulator starts at.
-    #[arg(long, allow_hyphen_values = true, default_value = "0,-0.3,0,1.6,0,-0.8,0")]
+    #[arg(
+        long,
+        allow_hyphen_values = true,
+        default_value = "0,-0.3,0,1.6,0,-0.8,0"
+    )]
     pub sim_initial_joints: String,
     /// Joint angles (rad) of F1,F2,F3 where the in-process hand emulator's object
     /// stops the closing fingers.
     #[arg(long, value_name = "F1,F2,F3", default_value = "1.0,1.0,1.0")]
     pub sim_contact_rad: String,
+    /// Link quality levels of the in-process arm simulator: highest miss rates (over
+    /// the last 100 cycles) still PERFECT, OK and BAD.
+    #[arg(long, value_name = "PERFECT,OK,BAD", default_value = "0.01,0.05,0.2")]
+    pub sim_miss_rates: String,
+    /// Misses in a row from which the in-process arm simulator's quality is at most
+    /// BAD, and from which it is UNACCEPTABLE (it drops to monitor).
+    #[arg(long, value_name = "BAD,UNACCEPTABLE", default_value = "2,5")]
+    pub sim_consecutive_misses: String,
     /// How long to hold the lifted object (s).
     #[arg(long, default_value_t = 2.0)]
     pub hold_s: f64,
@@ -75,6 +87,10 @@ pub fn run(config_path: &Path, args: ExecuteArgs) -> anyhow::Result<ExitCode> {
         let config = SimConfig {
             cycle_s: cell.fri.cycle_s,
             initial_joints_rad: std::array::from_fn(|j| q[j]),
+            quality: QualityThresholds::from_text(
+                &args.sim_miss_rates,
+                &args.sim_consecutive_misses,
+            )?,
             ..SimConfig::from_robot(&robot)
         };
         tracing::info!("starting the FRI robot simulator in this process");
@@ -119,7 +135,8 @@ pub fn run(config_path: &Path, args: ExecuteArgs) -> anyhow::Result<ExitCode> {
             .unwrap_or_else(|_| ProgressStyle::default_spinner()),
     );
     bar.enable_steady_tick(Duration::from_millis(100));
-    let report = executor.execute_observed(&request, &mut |phase| bar.set_message(phase.to_string()));
+    let report =
+        executor.execute_observed(&request, &mut |phase| bar.set_message(phase.to_string()));
     bar.finish_and_clear();
     drop(executor);
     // The simulated robot stops first, so it does not see the driver go silent.

@@ -2,7 +2,9 @@
 //! [`crate::execute`].
 
 use super::arm::Arm;
-use super::path::{palm_speed_limited, peak_palm_speed, straight_line, PathTolerance, StraightPath};
+use super::path::{
+    palm_speed_limited, peak_palm_speed, straight_line, PathTolerance, StraightPath,
+};
 use super::report::{ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
 use super::request::{ExecutionRequest, ValidRequest};
 use super::safety::{SafeArm, SafeArmError, SafetyLimits};
@@ -147,7 +149,14 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         clock: Arc<dyn Clock>,
     ) -> Executor<A, B> {
         let limits = SafetyLimits::from_cell(cell, &robot);
-        Executor::new(arm, hand, robot, limits, ExecutorConfig::from_cell(cell), clock)
+        Executor::new(
+            arm,
+            hand,
+            robot,
+            limits,
+            ExecutorConfig::from_cell(cell),
+            clock,
+        )
     }
 
     /// The arm behind its safety layer.
@@ -252,12 +261,8 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         let pregrasp = plan.request.pregrasp_joints_rad;
         self.phase(Phase::Pregrasp, report, began, observer, |ex, report| {
             let start = ex.commanded();
-            report.pregrasp_move = Some(ex.move_along(
-                Phase::Pregrasp,
-                "pregrasp move",
-                &[start, pregrasp],
-                None,
-            )?);
+            report.pregrasp_move =
+                Some(ex.move_along(Phase::Pregrasp, "pregrasp move", &[start, pregrasp], None)?);
             Ok(())
         })?;
         self.phase(Phase::Approach, report, began, observer, |ex, report| {
@@ -274,12 +279,8 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
                 motion: "approach",
                 source,
             })?;
-            report.approach = Some(ex.move_along(
-                Phase::Approach,
-                "approach",
-                &path.waypoints,
-                Some(&path),
-            )?);
+            report.approach =
+                Some(ex.move_along(Phase::Approach, "approach", &path.waypoints, Some(&path))?);
             Ok(())
         })?;
         let contacts = self.phase(Phase::Close, report, began, observer, |ex, report| {
@@ -288,12 +289,13 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         self.phase(Phase::Lift, report, began, observer, |ex, report| {
             let start = ex.commanded();
             let target = ex.lifted(&ex.robot.arm().palm(&start));
-            let path = straight_line(&ex.robot, &start, &target, None, &ex.config.path)
-                .map_err(|source| ExecuteError::Path {
+            let path = straight_line(&ex.robot, &start, &target, None, &ex.config.path).map_err(
+                |source| ExecuteError::Path {
                     phase: Phase::Lift,
                     motion: "lift",
                     source,
-                })?;
+                },
+            )?;
             report.lift = Some(ex.move_along(Phase::Lift, "lift", &path.waypoints, Some(&path))?);
             Ok(())
         })?;
@@ -328,7 +330,8 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
                     quality: status.quality,
                 });
             }
-            self.clock.sleep(Duration::from_secs_f64(self.config.poll_s));
+            self.clock
+                .sleep(Duration::from_secs_f64(self.config.poll_s));
         }
     }
 
@@ -384,8 +387,13 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             &self.config.path,
         )
         .map_err(path_error("approach"))?;
-        let approach_report =
-            self.plan_motion(PHASE, "approach", &approach.waypoints, Some(&approach), &preshape)?;
+        let approach_report = self.plan_motion(
+            PHASE,
+            "approach",
+            &approach.waypoints,
+            Some(&approach),
+            &preshape,
+        )?;
         let lift_target = self.lifted(&self.robot.arm().palm(&approach.end()));
         let lift = straight_line(
             &self.robot,
@@ -396,7 +404,8 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         )
         .map_err(path_error("lift"))?;
         // With the hand open: checked again with the measured hand before the lift.
-        let lift_report = self.plan_motion(PHASE, "lift", &lift.waypoints, Some(&lift), &preshape)?;
+        let lift_report =
+            self.plan_motion(PHASE, "lift", &lift.waypoints, Some(&lift), &preshape)?;
         report.pregrasp_move = Some(pregrasp_move);
         report.approach = Some(approach_report);
         report.lift = Some(lift_report);
@@ -454,7 +463,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             .map_err(|source| ExecuteError::Unsafe {
                 phase,
                 motion,
-                source,
+                source: Box::new(source),
             })?;
         Ok(report)
     }
@@ -472,17 +481,14 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         let deadline_s = trajectory.duration_s() * self.config.motion_timeout_factor
             + self.config.motion_timeout_margin_s;
         let start = self.clock.now();
-        let id = self
-            .arm
-            .start_trajectory(trajectory)
-            .map_err(|e| match e {
-                SafeArmError::Unsafe(source) => ExecuteError::Unsafe {
-                    phase,
-                    motion,
-                    source,
-                },
-                SafeArmError::Arm(source) => ExecuteError::from_arm(phase, source),
-            })?;
+        let id = self.arm.start_trajectory(trajectory).map_err(|e| match e {
+            SafeArmError::Unsafe(source) => ExecuteError::Unsafe {
+                phase,
+                motion,
+                source: Box::new(source),
+            },
+            SafeArmError::Arm(source) => ExecuteError::from_arm(phase, source),
+        })?;
         loop {
             if let Some(outcome) = self.arm.arm().motion_outcome(id) {
                 return outcome
@@ -498,7 +504,8 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
                     deadline_s,
                 });
             }
-            self.clock.sleep(Duration::from_secs_f64(self.config.poll_s));
+            self.clock
+                .sleep(Duration::from_secs_f64(self.config.poll_s));
         }
     }
 
@@ -541,7 +548,10 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         let timeout = Duration::from_secs_f64(self.config.hand_bringup_timeout_s);
         self.hand.wake(timeout).map_err(Self::hand_error(PHASE))?;
         self.check_arm(PHASE)?;
-        let info = self.hand.identify(timeout).map_err(Self::hand_error(PHASE))?;
+        let info = self
+            .hand
+            .identify(timeout)
+            .map_err(Self::hand_error(PHASE))?;
         tracing::info!(?info, "hand identified");
         self.check_arm(PHASE)?;
         self.hand
@@ -563,7 +573,10 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             .move_to(&target, timeout)
             .map_err(Self::hand_error(PHASE))?;
         self.check_arm(PHASE)?;
-        let positions = self.hand.positions(timeout).map_err(Self::hand_error(PHASE))?;
+        let positions = self
+            .hand
+            .positions(timeout)
+            .map_err(Self::hand_error(PHASE))?;
         self.arm.set_hand(hand_pose(&positions));
         report.hand_positions = Some(positions);
         report.strain_baseline = Some(self.hand.strain(timeout).map_err(Self::hand_error(PHASE))?);
@@ -577,7 +590,10 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         let timeout = self.call_timeout();
         let outcomes = self.hand.close(timeout).map_err(Self::hand_error(PHASE))?;
         self.check_arm(PHASE)?;
-        let positions = self.hand.positions(timeout).map_err(Self::hand_error(PHASE))?;
+        let positions = self
+            .hand
+            .positions(timeout)
+            .map_err(Self::hand_error(PHASE))?;
         let strain = self.hand.strain(timeout).map_err(Self::hand_error(PHASE))?;
         self.check_arm(PHASE)?;
         self.arm.set_hand(hand_pose(&positions));
@@ -622,10 +638,14 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         let baseline = report.strain_baseline.unwrap_or([0; 3]);
         let threshold = self.config.contact_strain_rise;
         loop {
-            self.clock.sleep(Duration::from_secs_f64(self.config.hold_poll_s));
+            self.clock
+                .sleep(Duration::from_secs_f64(self.config.hold_poll_s));
             self.check_arm(PHASE)?;
             let strain = self.hand.strain(timeout).map_err(Self::hand_error(PHASE))?;
-            let positions = self.hand.positions(timeout).map_err(Self::hand_error(PHASE))?;
+            let positions = self
+                .hand
+                .positions(timeout)
+                .map_err(Self::hand_error(PHASE))?;
             self.check_arm(PHASE)?;
             report.strain = Some(strain);
             report.hand_positions = Some(positions);
@@ -751,11 +771,9 @@ mod tests {
             let bus = VirtualBus::new("execute-unit");
             let node = bus.endpoint();
             let probe = node.idle_probe();
-            let clock: Arc<dyn Clock> = Arc::new(
-                ManualClock::new().with_settle(move || {
-                    probe.wait_idle(Duration::from_secs(5));
-                }),
-            );
+            let clock: Arc<dyn Clock> = Arc::new(ManualClock::new().with_settle(move || {
+                probe.wait_idle(Duration::from_secs(5));
+            }));
             let emulator = HandEmulator::new(emulator, Arc::clone(&clock))
                 .unwrap()
                 .spawn(node);
@@ -920,10 +938,21 @@ mod tests {
         });
         let err = report.error.as_ref().unwrap();
         assert!(
-            matches!(err, ExecuteError::ArmMeasurementLate { phase: Phase::Hold, .. }),
+            matches!(
+                err,
+                ExecuteError::ArmMeasurementLate {
+                    phase: Phase::Hold,
+                    ..
+                }
+            ),
             "{err}"
         );
-        assert!(report.stop.as_ref().unwrap().arm.contains("no measurements"));
+        assert!(report
+            .stop
+            .as_ref()
+            .unwrap()
+            .arm
+            .contains("no measurements"));
     }
 
     #[test]
@@ -983,16 +1012,23 @@ mod tests {
         let report = rig.executor(&rig.arm).execute(&req);
         assert_eq!(phases(&report), [Phase::ArmReady, Phase::Validate]);
         let err = report.error.as_ref().unwrap();
-        let ExecuteError::Unsafe {
-            phase: Phase::Validate,
-            motion: "pregrasp move",
-            source: SafetyError::OutOfLimit {
-                joint,
-                position_rad,
-                limit_rad,
-                ..
-            },
-        } = err
+        assert!(
+            matches!(
+                err,
+                ExecuteError::Unsafe {
+                    phase: Phase::Validate,
+                    motion: "pregrasp move",
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        let Some(SafetyError::OutOfLimit {
+            joint,
+            position_rad,
+            limit_rad,
+            ..
+        }) = err.safety_violation()
         else {
             panic!("{err}");
         };

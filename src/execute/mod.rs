@@ -141,8 +141,8 @@ pub enum ExecuteError {
         phase: Phase,
         /// Which motion (`pregrasp move`, `approach`, `lift`).
         motion: &'static str,
-        /// What was violated.
-        source: SafetyError,
+        /// What was violated (boxed: it carries a configuration).
+        source: Box<SafetyError>,
     },
     /// No straight palm path.
     #[error("{phase}: {motion}: {source}")]
@@ -201,7 +201,9 @@ pub enum ExecuteError {
         source: FriError,
     },
     /// The watchdog: a phase ran past its deadline.
-    #[error("{phase}: watchdog: still running after {elapsed_s:.3} s (deadline {deadline_s:.3} s)")]
+    #[error(
+        "{phase}: watchdog: still running after {elapsed_s:.3} s (deadline {deadline_s:.3} s)"
+    )]
     PhaseTimeout {
         /// The phase.
         phase: Phase,
@@ -294,6 +296,14 @@ impl ExecuteError {
             | ExecuteError::Arm { phase, .. }
             | ExecuteError::PhaseTimeout { phase, .. }
             | ExecuteError::Hand { phase, .. } => *phase,
+        }
+    }
+
+    /// The safety limit a refused motion would have violated.
+    pub fn safety_violation(&self) -> Option<&SafetyError> {
+        match self {
+            ExecuteError::Unsafe { source, .. } => Some(source),
+            _ => None,
         }
     }
 

@@ -189,7 +189,9 @@ pub fn straight_line(
     }
     let mut kept = vec![0];
     let mut worst = (0.0f64, 0.0f64);
-    reduce(robot, &line, &chain, 0, steps, tolerance, &mut kept, &mut worst);
+    reduce(
+        robot, &line, &chain, 0, steps, tolerance, &mut kept, &mut worst,
+    );
     Ok(StraightPath {
         method: PathMethod::CartesianWaypoints,
         waypoints: kept.iter().map(|&i| chain[i]).collect(),
@@ -341,7 +343,10 @@ mod tests {
                 assert!(p.z > 0.15 - 1e-3 && p.z < 0.25 + 1e-3, "{p:?}");
             }
         }
-        assert!(worst <= tolerance.position_m + 1e-4, "{worst} m off the line");
+        assert!(
+            worst <= tolerance.position_m + 1e-4,
+            "{worst} m off the line"
+        );
         assert!(path.max_position_deviation_m <= tolerance.position_m + 1e-4);
     }
 
@@ -355,8 +360,8 @@ mod tests {
             .reach(&grasp, &Default::default(), &[from.joints])
             .unwrap();
         let tolerance = PathTolerance::default();
-        let path = straight_line(&robot, &from.joints, &grasp, Some(&end.joints), &tolerance)
-            .unwrap();
+        let path =
+            straight_line(&robot, &from.joints, &grasp, Some(&end.joints), &tolerance).unwrap();
         assert_eq!(path.method, PathMethod::JointLine);
         assert_eq!(path.waypoints, vec![from.joints, end.joints]);
     }
@@ -403,8 +408,16 @@ mod tests {
         let mut worst: f64 = 0.0;
         let mut t = 0.0;
         while t < slow.duration_s() {
-            let p0 = robot.arm().palm(&slow.sample(t).position).translation.vector;
-            let p1 = robot.arm().palm(&slow.sample(t + dt).position).translation.vector;
+            let p0 = robot
+                .arm()
+                .palm(&slow.sample(t).position)
+                .translation
+                .vector;
+            let p1 = robot
+                .arm()
+                .palm(&slow.sample(t + dt).position)
+                .translation
+                .vector;
             worst = worst.max((p1 - p0).norm() / dt);
             t += dt;
         }

@@ -159,7 +159,11 @@ impl ExecutionReport {
             }
         }
         if !self.fingers_in_contact.is_empty() {
-            let names: Vec<String> = self.fingers_in_contact.iter().map(|p| p.to_string()).collect();
+            let names: Vec<String> = self
+                .fingers_in_contact
+                .iter()
+                .map(|p| p.to_string())
+                .collect();
             text += &format!("  in contact: {}\n", names.join(", "));
         }
         if let Some(h) = &self.hand_positions {

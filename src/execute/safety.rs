@@ -262,11 +262,12 @@ impl<A: Arm> SafeArm<A> {
         let mut position: Option<(f64, SafetyError)> = None;
         let mut velocity: Option<(f64, SafetyError)> = None;
         let mut acceleration: Option<(f64, SafetyError)> = None;
-        let worse = |slot: &mut Option<(f64, SafetyError)>, excess: f64, make: &dyn Fn() -> SafetyError| {
-            if excess > 0.0 && slot.as_ref().is_none_or(|(e, _)| excess > *e) {
-                *slot = Some((excess, make()));
-            }
-        };
+        let worse =
+            |slot: &mut Option<(f64, SafetyError)>, excess: f64, make: &dyn Fn() -> SafetyError| {
+                if excess > 0.0 && slot.as_ref().is_none_or(|(e, _)| excess > *e) {
+                    *slot = Some((excess, make()));
+                }
+            };
         for &(t_s, ref s) in samples {
             for j in 0..JOINTS {
                 let q = s.position[j];
@@ -455,8 +456,8 @@ mod tests {
         let arm = safe_arm();
         // Built at twice the allowed speed: endpoints at rest, the middle too fast.
         let l = arm.limits();
-        let full = JointLimits::new(l.velocity_rad_s.map(|v| 2.0 * v), l.acceleration_rad_s2)
-            .unwrap();
+        let full =
+            JointLimits::new(l.velocity_rad_s.map(|v| 2.0 * v), l.acceleration_rad_s2).unwrap();
         let mut goal = OVER_TABLE;
         goal[0] += 1.0;
         let t = Trajectory::point_to_point(OVER_TABLE, goal, &full).unwrap();
@@ -514,7 +515,10 @@ mod tests {
                 palm_xyz_m, max_m, ..
             } => {
                 assert_eq!(max_m, [1.10, 0.70, 1.00]);
-                assert!(palm_xyz_m[2] > 1.0 || palm_xyz_m[0] < 0.15, "{palm_xyz_m:?}");
+                assert!(
+                    palm_xyz_m[2] > 1.0 || palm_xyz_m[0] < 0.15,
+                    "{palm_xyz_m:?}"
+                );
             }
             other => panic!("{other}"),
         }
