@@ -13,6 +13,7 @@ pub mod clock;
 pub mod cloud;
 pub mod config;
 pub mod fsio;
+pub mod execute;
 pub mod geometry;
 pub mod hw;
 pub mod ipc;

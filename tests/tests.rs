@@ -4,6 +4,7 @@ mod calib;
 mod calib_collect;
 mod camera;
 mod can;
+mod execute;
 mod fri;
 mod ipc;
 mod objects;

@@ -6,8 +6,9 @@ use anyhow::Context;
 use clap::Parser;
 use graspcell::clock::{Clock, SystemClock};
 use graspcell::hw::fri::JOINTS;
-use graspcell::sim::fri::{run_udp, FriSimulator, SimConfig};
+use graspcell::sim::fri::{run_udp, FriSimulator, QualityThresholds, SimConfig};
 use std::net::{SocketAddr, UdpSocket};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Mutex;
@@ -32,6 +33,18 @@ struct Args {
     /// Time constant of the joints' lag behind the command (s); 0 tracks exactly.
     #[arg(long, default_value_t = 0.0)]
     tracking_time_constant_s: f64,
+    /// Cell configuration whose URDF gives the joint position and velocity limits;
+    /// without it the LBR4+ data-sheet limits apply.
+    #[arg(long, value_name = "CELL_TOML")]
+    config: Option<PathBuf>,
+    /// Link quality levels: highest miss rates (0..=1, over the last 100 cycles)
+    /// that are still PERFECT, OK and BAD.
+    #[arg(long, value_name = "PERFECT,OK,BAD", default_value = "0.01,0.05,0.2")]
+    miss_rates: String,
+    /// Misses in a row from which quality is at most BAD, and from which it is
+    /// UNACCEPTABLE (the robot drops to monitor).
+    #[arg(long, value_name = "BAD,UNACCEPTABLE", default_value = "2,5")]
+    consecutive_misses: String,
     /// Stop after this many seconds; runs until killed if not given.
     #[arg(long)]
     seconds: Option<f64>,
@@ -52,10 +65,18 @@ fn main() -> ExitCode {
 }
 
 fn run(args: Args) -> anyhow::Result<()> {
+    let base = match &args.config {
+        Some(path) => {
+            let cell = graspcell::config::CellConfig::load(path)?;
+            SimConfig::from_robot(&graspcell::robot::Robot::load(&cell)?)
+        }
+        None => SimConfig::default(),
+    };
     let mut config = SimConfig {
         cycle_s: args.cycle_ms / 1000.0,
         tracking_time_constant_s: args.tracking_time_constant_s,
-        ..SimConfig::default()
+        quality: QualityThresholds::from_text(&args.miss_rates, &args.consecutive_misses)?,
+        ..base
     };
     if let Some(text) = &args.initial_joints {
         let q = graspcell::geometry::parse_numbers(text, JOINTS, "--initial-joints")?;

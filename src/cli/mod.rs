@@ -7,6 +7,7 @@ pub mod bench;
 mod calibrate;
 mod camera;
 mod can;
+mod execute;
 mod fri;
 pub mod ipc;
 mod objects;
@@ -60,6 +61,8 @@ pub enum Command {
     Camera(camera::CameraCommand),
     /// Grasp quality (Ferrari–Canny epsilon, wrench-space volume) of given contacts.
     Quality(quality::QualityArgs),
+    /// Execute one planned grasp (pre-grasp, approach, close, lift, hold) and report.
+    Execute(execute::ExecuteArgs),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -98,6 +101,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Objects(which) => objects::run(which),
         Command::Camera(which) => camera::run(&cli.config, which),
         Command::Quality(args) => quality::run(args),
+        Command::Execute(args) => execute::run(&cli.config, args),
         Command::Bench(which) => bench::run(&cli.config, which),
         Command::IpcPeer(args) => ipc::run_peer(args),
     }

@@ -105,6 +105,41 @@ pub struct QualityThresholds {
     pub unacceptable_consecutive_misses: u32,
 }
 
+impl QualityThresholds {
+    /// Thresholds from command-line text: miss rates `PERFECT,OK,BAD` (fractions)
+    /// and consecutive misses `BAD,UNACCEPTABLE` (whole numbers). Checked fully by
+    /// [`SimConfig::validate`].
+    pub fn from_text(miss_rates: &str, consecutive_misses: &str) -> Result<Self, SimError> {
+        let bad = |field: &str, value: &str, problem| SimError::BadConfig {
+            field: field.to_string(),
+            value: value.to_string(),
+            problem,
+        };
+        let rates = crate::geometry::parse_numbers(miss_rates, 3, "miss rates")
+            .map_err(|_| bad("quality miss rates", miss_rates, "expected PERFECT,OK,BAD"))?;
+        let counts: Vec<u32> = consecutive_misses
+            .split(',')
+            .map(|t| t.trim().parse::<u32>())
+            .collect::<Result<_, _>>()
+            .ok()
+            .filter(|c: &Vec<u32>| c.len() == 2)
+            .ok_or_else(|| {
+                bad(
+                    "quality consecutive misses",
+                    consecutive_misses,
+                    "expected two whole numbers BAD,UNACCEPTABLE",
+                )
+            })?;
+        Ok(QualityThresholds {
+            perfect_max_miss_rate: rates[0],
+            ok_max_miss_rate: rates[1],
+            bad_max_miss_rate: rates[2],
+            bad_consecutive_misses: counts[0],
+            unacceptable_consecutive_misses: counts[1],
+        })
+    }
+}
+
 impl Default for QualityThresholds {
     fn default() -> QualityThresholds {
         QualityThresholds {
@@ -164,6 +199,18 @@ impl Default for SimConfig {
 }
 
 impl SimConfig {
+    /// Defaults with the joint position and velocity limits of `robot`'s URDF (the
+    /// seven arm joints) instead of the LBR4+ data-sheet constants.
+    pub fn from_robot(robot: &crate::robot::Robot) -> SimConfig {
+        let arm = &robot.description.variables[..JOINTS];
+        SimConfig {
+            position_min_rad: std::array::from_fn(|j| arm[j].lower_rad),
+            position_max_rad: std::array::from_fn(|j| arm[j].upper_rad),
+            velocity_limit_rad_s: std::array::from_fn(|j| arm[j].velocity_rad_s),
+            ..SimConfig::default()
+        }
+    }
+
     /// Checks every value is in range.
     pub fn validate(&self) -> Result<(), SimError> {
         let bad = |field: String, value: f64, problem| SimError::BadConfig {
@@ -1147,6 +1194,46 @@ mod tests {
         assert_eq!(sim.state(), FriState::Command);
         sim.take_events();
         (sim, t)
+    }
+
+    #[test]
+    fn quality_thresholds_parse_from_text() {
+        assert_eq!(
+            QualityThresholds::from_text("0.01,0.05,0.2", "2,5").unwrap(),
+            QualityThresholds::default()
+        );
+        for (rates, misses) in [
+            ("0.1,0.2", "2,5"),
+            ("0.01,0.05,0.2", "2.5,5"),
+            ("a,b,c", "2,5"),
+        ] {
+            let err = QualityThresholds::from_text(rates, misses)
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("quality"), "{err}");
+        }
+    }
+
+    #[test]
+    fn limits_from_the_robot_are_the_urdf_limits_of_the_arm_joints() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(crate::config::DEFAULT_CONFIG_PATH);
+        let cell = crate::config::CellConfig::load(&path).unwrap();
+        let robot = crate::robot::Robot::load(&cell).unwrap();
+        let config = SimConfig::from_robot(&robot);
+        config.validate().unwrap();
+        // Read the URDF again, independently of the robot module.
+        let urdf = urdf_rs::read_file(&cell.robot.urdf).unwrap();
+        for (j, name) in cell.robot.arm_joints.iter().enumerate() {
+            let joint = urdf.joints.iter().find(|x| &x.name == name).unwrap();
+            assert_eq!(config.position_min_rad[j], joint.limit.lower, "{name}");
+            assert_eq!(config.position_max_rad[j], joint.limit.upper, "{name}");
+            assert_eq!(
+                config.velocity_limit_rad_s[j], joint.limit.velocity,
+                "{name}"
+            );
+        }
+        assert_eq!(config.cycle_s, SimConfig::default().cycle_s);
     }
 
     #[test]

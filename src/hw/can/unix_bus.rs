@@ -14,8 +14,15 @@
 //!
 //! A socket file whose hub died is stale: binding a new hub finds nobody
 //! listening, removes it and binds afresh.
+//!
+//! A hub started with [`Hub::bind_with_faults`] loses or corrupts frames as a
+//! [`super::VirtualBus`] does (seeded; drawn once per frame, so every receiver sees the
+//! same fault), for hardware-in-loop tests across processes.
 
-use super::{BusState, CanBus, CanError, CanFrame, SEND_TIMEOUT, VIRTUAL_PREFIX};
+use super::virtual_bus::FaultInjector;
+use super::{
+    BusState, CanBus, CanError, CanFrame, FaultConfig, FaultCounts, SEND_TIMEOUT, VIRTUAL_PREFIX,
+};
 use socket2::{Domain, SockAddr, Socket, Type};
 use std::io::ErrorKind;
 use std::mem::MaybeUninit;
@@ -166,6 +173,7 @@ struct HubShared {
     stop: AtomicBool,
     exit_when_empty: bool,
     clients: Mutex<Clients>,
+    faults: Option<Mutex<FaultInjector>>,
 }
 
 #[derive(Default)]
@@ -179,7 +187,34 @@ impl Hub {
     /// socket file. Fails with [`CanError::Open`] (`AddrInUse`) when a live hub
     /// already serves the bus.
     pub fn bind(name: &str) -> Result<Hub, CanError> {
-        Hub::start(name, false)
+        Hub::start(name, false, None)
+    }
+
+    /// [`Hub::bind`], losing and corrupting forwarded frames as `faults` says
+    /// (latency is not supported across processes and must be zero).
+    pub fn bind_with_faults(name: &str, faults: FaultConfig) -> Result<Hub, CanError> {
+        let interface = interface_of(name);
+        faults.validate(&interface)?;
+        if !faults.latency.is_zero() {
+            return Err(CanError::BadInterface {
+                interface,
+                problem: format!(
+                    "fault latency {:?}: the cross-process hub injects only loss and corruption",
+                    faults.latency
+                ),
+            });
+        }
+        tracing::info!(bus = %interface, seed = faults.seed, ?faults, "CAN hub faults set");
+        Hub::start(name, false, Some(FaultInjector::new(faults)))
+    }
+
+    /// Counts of frames forwarded, lost and corrupted (all zero without faults).
+    pub fn fault_counts(&self) -> FaultCounts {
+        self.shared
+            .faults
+            .as_ref()
+            .map(|f| f.lock().unwrap_or_else(|e| e.into_inner()).counts)
+            .unwrap_or_default()
     }
 
     /// The socket path nodes connect to.
@@ -192,7 +227,11 @@ impl Hub {
         self.shared.lock_clients().list.len()
     }
 
-    fn start(name: &str, exit_when_empty: bool) -> Result<Hub, CanError> {
+    fn start(
+        name: &str,
+        exit_when_empty: bool,
+        faults: Option<FaultInjector>,
+    ) -> Result<Hub, CanError> {
         let interface = interface_of(name);
         let path = prepare_path(name)?;
         let open_err = |source| CanError::Open {
@@ -239,6 +278,7 @@ impl Hub {
             stop: AtomicBool::new(false),
             exit_when_empty,
             clients: Mutex::new(Clients::default()),
+            faults: faults.map(Mutex::new),
         });
         tracing::debug!(path = %shared.path.display(), "CAN hub listening");
         let for_thread = Arc::clone(&shared);
@@ -327,16 +367,32 @@ impl HubShared {
                 Err(e) if e.kind() == ErrorKind::Interrupted => continue,
                 Err(_) => break,
             };
-            if let Err(problem) = decode_packet(&buf[..n]) {
-                tracing::warn!(hub = %self.interface, node = id, len = n, "dropped malformed packet: {problem}");
-                continue;
-            }
+            let frame = match decode_packet(&buf[..n]) {
+                Ok(frame) => frame,
+                Err(problem) => {
+                    tracing::warn!(hub = %self.interface, node = id, len = n, "dropped malformed packet: {problem}");
+                    continue;
+                }
+            };
+            let packet = match &self.faults {
+                None => encode_packet(&frame),
+                Some(faults) => {
+                    let injected = faults
+                        .lock()
+                        .unwrap_or_else(|e| e.into_inner())
+                        .inject(&frame);
+                    match injected {
+                        Some(frame) => encode_packet(&frame),
+                        None => continue,
+                    }
+                }
+            };
             let clients = self.lock_clients();
             for (other, peer) in &clients.list {
                 if *other == id {
                     continue;
                 }
-                match peer.send_with_flags(&buf[..n], libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL) {
+                match peer.send_with_flags(&packet, libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL) {
                     Ok(_) => {}
                     Err(e) if e.kind() == ErrorKind::WouldBlock => {
                         tracing::warn!(hub = %self.interface, node = other, "receive queue full: frame lost");
@@ -417,7 +473,7 @@ impl UnixBus {
                 Err(ConnectError::Other(e)) => return Err(e),
                 Err(ConnectError::NoHub(e)) => last = Some(e),
             }
-            match Hub::start(name, true) {
+            match Hub::start(name, true, None) {
                 Ok(hub) => hub.detach(),
                 // Another process won the race: connect to its hub.
                 Err(CanError::Open { error: source, .. })
@@ -633,6 +689,57 @@ mod tests {
         let err = b.recv(Duration::from_secs(5)).unwrap_err();
         assert!(matches!(err, CanError::Disconnected { .. }), "{err}");
         assert_eq!(b.state(), BusState::Disconnected);
+    }
+
+    #[test]
+    fn hub_with_faults_loses_frames_reproducibly() {
+        let run = |seed| {
+            let name = unique("faults");
+            let hub = Hub::bind_with_faults(
+                &name,
+                FaultConfig {
+                    loss_probability: 0.25,
+                    seed,
+                    ..FaultConfig::default()
+                },
+            )
+            .unwrap();
+            let mut a = UnixBus::connect(&name).unwrap();
+            let mut b = UnixBus::connect(&name).unwrap();
+            // Read while sending, so no receive queue overflows.
+            let reader = std::thread::spawn(move || {
+                let mut got = Vec::new();
+                while let Some(f) = b.recv(Duration::from_millis(500)).unwrap() {
+                    got.push(u16::from_le_bytes([f.data()[0], f.data()[1]]));
+                }
+                got
+            });
+            for i in 0..400u16 {
+                a.send(&CanFrame::new(0x100, &i.to_le_bytes()).unwrap())
+                    .unwrap();
+            }
+            let got = reader.join().unwrap();
+            let counts = hub.fault_counts();
+            assert_eq!(counts.sent, 400);
+            assert_eq!(counts.lost as usize, 400 - got.len());
+            got
+        };
+        let first = run(3);
+        // Binomial(400, 0.75): mean 300, sd 8.7; +-5 sd.
+        assert!((257..=343).contains(&first.len()), "{}", first.len());
+        assert!(first.windows(2).all(|w| w[0] < w[1]), "order kept");
+        assert_eq!(first, run(3));
+        let err = Hub::bind_with_faults(
+            &unique("latency"),
+            FaultConfig {
+                latency: Duration::from_millis(1),
+                ..FaultConfig::default()
+            },
+        )
+        .err()
+        .unwrap()
+        .to_string();
+        assert!(err.contains("latency"), "{err}");
     }
 
     #[test]

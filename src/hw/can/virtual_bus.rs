@@ -58,7 +58,7 @@ impl Default for FaultConfig {
 }
 
 impl FaultConfig {
-    fn validate(&self, bus: &str) -> Result<(), CanError> {
+    pub(super) fn validate(&self, bus: &str) -> Result<(), CanError> {
         for (field, p) in [
             ("loss_probability", self.loss_probability),
             ("corrupt_probability", self.corrupt_probability),
@@ -101,9 +101,7 @@ struct Shared {
 struct Inner {
     queues: HashMap<u64, VecDeque<(Instant, CanFrame)>>,
     next_endpoint: u64,
-    faults: FaultConfig,
-    rng: ChaCha8Rng,
-    counts: FaultCounts,
+    injector: FaultInjector,
     bus_off: bool,
     /// Endpoints blocked in `recv` right now.
     waiting: HashSet<u64>,
@@ -118,9 +116,7 @@ impl VirtualBus {
                 inner: Mutex::new(Inner {
                     queues: HashMap::new(),
                     next_endpoint: 0,
-                    faults: FaultConfig::default(),
-                    rng: ChaCha8Rng::seed_from_u64(0),
-                    counts: FaultCounts::default(),
+                    injector: FaultInjector::new(FaultConfig::default()),
                     bus_off: false,
                     waiting: HashSet::new(),
                 }),
@@ -140,9 +136,7 @@ impl VirtualBus {
     pub fn set_faults(&self, faults: FaultConfig) -> Result<(), CanError> {
         faults.validate(&self.shared.interface)?;
         tracing::info!(bus = %self.shared.interface, seed = faults.seed, ?faults, "CAN faults set");
-        let mut inner = self.lock();
-        inner.rng = ChaCha8Rng::seed_from_u64(faults.seed);
-        inner.faults = faults;
+        self.lock().injector = FaultInjector::new(faults);
         Ok(())
     }
 
@@ -154,7 +148,7 @@ impl VirtualBus {
 
     /// Counts of sent, lost and corrupted frames.
     pub fn fault_counts(&self) -> FaultCounts {
-        self.lock().counts
+        self.lock().injector.counts
     }
 
     /// The interface label, `inproc:NAME`.
@@ -185,9 +179,26 @@ impl Shared {
     }
 }
 
-impl Inner {
+/// Draws the faults of a [`FaultConfig`] frame by frame (shared with the
+/// cross-process hub, which applies them to every frame it forwards).
+pub(super) struct FaultInjector {
+    pub(super) faults: FaultConfig,
+    rng: ChaCha8Rng,
+    pub(super) counts: FaultCounts,
+}
+
+impl FaultInjector {
+    /// An injector seeded from `faults.seed`; `faults` must have been validated.
+    pub(super) fn new(faults: FaultConfig) -> FaultInjector {
+        FaultInjector {
+            rng: ChaCha8Rng::seed_from_u64(faults.seed),
+            faults,
+            counts: FaultCounts::default(),
+        }
+    }
+
     /// Applies loss and corruption; `None` when the frame is lost.
-    fn inject(&mut self, frame: &CanFrame) -> Option<CanFrame> {
+    pub(super) fn inject(&mut self, frame: &CanFrame) -> Option<CanFrame> {
         self.counts.sent += 1;
         let affected = match &self.faults.affected_ids {
             Some(range) => range.contains(&frame.id()),
@@ -242,10 +253,10 @@ impl CanBus for VirtualEndpoint {
         if inner.bus_off {
             return Err(self.bus_off());
         }
-        let Some(frame) = inner.inject(frame) else {
+        let Some(frame) = inner.injector.inject(frame) else {
             return Ok(());
         };
-        let deliver_at = Instant::now() + inner.faults.latency;
+        let deliver_at = Instant::now() + inner.injector.faults.latency;
         for (&id, queue) in inner.queues.iter_mut() {
             if id != self.id {
                 // Never before the frame ahead of it: CAN does not reorder.

@@ -1,0 +1,1100 @@
+//! The grasp sequence with its watchdog; see the module documentation of
+//! [`crate::execute`].
+
+use super::arm::Arm;
+use super::path::{
+    palm_speed_limited, peak_palm_speed, straight_line, PathTolerance, StraightPath,
+};
+use super::report::{ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
+use super::request::{ExecutionRequest, ValidRequest};
+use super::safety::{SafeArm, SafeArmError, SafetyLimits};
+use super::{ExecuteError, Phase};
+use crate::clock::Clock;
+use crate::config::CellConfig;
+use crate::geometry::{pose_error, Pose, PoseJson};
+use crate::hw::can::CanBus;
+use crate::hw::fri::{FriError, FriState, FriStatus, JOINTS};
+use crate::hw::hand::{Hand, HandPositions, Puck};
+use crate::robot::kinematics::ArmJoints;
+use crate::robot::{HandPose, Robot};
+use crate::trajectory::Trajectory;
+use nalgebra::Translation3;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Settings of the executor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExecutorConfig {
+    /// How far the palm lifts the object, straight up (m).
+    pub lift_m: f64,
+    /// How long the object is held after the lift (s).
+    pub hold_s: f64,
+    /// Period of grasp checks while holding (s).
+    pub hold_poll_s: f64,
+    /// Period of polling the arm while it moves (s).
+    pub poll_s: f64,
+    /// Longest wait for the robot's command mode (s).
+    pub arm_ready_timeout_s: f64,
+    /// Timeout of each hand bring-up call: wake, identify, initialise (s).
+    pub hand_bringup_timeout_s: f64,
+    /// Timeout of every other hand call (s).
+    pub hand_call_timeout_s: f64,
+    /// An arm motion's deadline is its duration times this ...
+    pub motion_timeout_factor: f64,
+    /// ... plus this (s).
+    pub motion_timeout_margin_s: f64,
+    /// Fingers that must stop on the object.
+    pub min_contact_fingers: usize,
+    /// Strain gauge rise over the open-hand baseline that counts as contact (counts).
+    pub contact_strain_rise: i32,
+    /// Largest finger movement while holding (rad).
+    pub slip_tolerance_rad: f64,
+    /// Time given to the arm to come to rest after a stop, before reporting (s).
+    pub stop_settle_s: f64,
+    /// Peak palm speed of the approach and the lift (m/s).
+    pub palm_speed_m_s: f64,
+    /// Straightness of approach and lift.
+    pub path: PathTolerance,
+    /// Largest distance between the palm at the planner's joints and its pose (m).
+    pub plan_tolerance_m: f64,
+    /// Largest rotation between the palm at the planner's joints and its pose (rad).
+    pub plan_tolerance_rad: f64,
+}
+
+impl Default for ExecutorConfig {
+    fn default() -> Self {
+        ExecutorConfig {
+            lift_m: 0.10,
+            hold_s: 2.0,
+            hold_poll_s: 0.1,
+            poll_s: 0.01,
+            arm_ready_timeout_s: 10.0,
+            hand_bringup_timeout_s: 30.0,
+            hand_call_timeout_s: 10.0,
+            motion_timeout_factor: 1.5,
+            motion_timeout_margin_s: 2.0,
+            min_contact_fingers: 2,
+            contact_strain_rise: 300,
+            slip_tolerance_rad: 0.05,
+            stop_settle_s: 0.5,
+            palm_speed_m_s: 0.2,
+            path: PathTolerance::default(),
+            plan_tolerance_m: 1e-3,
+            plan_tolerance_rad: 0.01,
+        }
+    }
+}
+
+impl ExecutorConfig {
+    /// Defaults with the palm speed limit of the cell configuration.
+    pub fn from_cell(config: &CellConfig) -> ExecutorConfig {
+        ExecutorConfig {
+            palm_speed_m_s: config.limits.palm_speed_m_s,
+            ..ExecutorConfig::default()
+        }
+    }
+}
+
+/// Everything the validation worked out.
+struct Plan {
+    request: ValidRequest,
+    preshape: HandPose,
+}
+
+/// Runs grasps on an arm (behind the safety layer) and a hand.
+pub struct Executor<A, B> {
+    arm: SafeArm<A>,
+    hand: Hand<B>,
+    robot: Arc<Robot>,
+    clock: Arc<dyn Clock>,
+    config: ExecutorConfig,
+    /// The hand has been sent commands (bring-up began).
+    hand_touched: bool,
+    /// The hand has been brought up.
+    hand_ready: bool,
+}
+
+fn secs(d: Duration) -> f64 {
+    d.as_secs_f64()
+}
+
+impl<A: Arm, B: CanBus> Executor<A, B> {
+    /// An executor; the arm is wrapped in the safety layer with `limits`. The hand is
+    /// brought up on the first run.
+    pub fn new(
+        arm: A,
+        hand: Hand<B>,
+        robot: Arc<Robot>,
+        limits: SafetyLimits,
+        config: ExecutorConfig,
+        clock: Arc<dyn Clock>,
+    ) -> Executor<A, B> {
+        Executor {
+            arm: SafeArm::new(arm, Arc::clone(&robot), limits),
+            hand,
+            robot,
+            clock,
+            config,
+            hand_touched: false,
+            hand_ready: false,
+        }
+    }
+
+    /// An executor with the cell's limits and settings.
+    pub fn from_cell(
+        arm: A,
+        hand: Hand<B>,
+        robot: Arc<Robot>,
+        cell: &CellConfig,
+        clock: Arc<dyn Clock>,
+    ) -> Executor<A, B> {
+        let limits = SafetyLimits::from_cell(cell, &robot);
+        Executor::new(
+            arm,
+            hand,
+            robot,
+            limits,
+            ExecutorConfig::from_cell(cell),
+            clock,
+        )
+    }
+
+    /// The arm behind its safety layer.
+    pub fn safe_arm(&self) -> &SafeArm<A> {
+        &self.arm
+    }
+
+    /// The hand driver.
+    pub fn hand(&mut self) -> &mut Hand<B> {
+        &mut self.hand
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &ExecutorConfig {
+        &self.config
+    }
+
+    /// Executes one grasp; the report says how it went (never panics on device
+    /// faults: they end the run with a named error after stopping both devices).
+    pub fn execute(&mut self, request: &ExecutionRequest) -> ExecutionReport {
+        self.execute_observed(request, &mut |_| {})
+    }
+
+    /// [`Executor::execute`], calling `observer` as each phase begins.
+    pub fn execute_observed(
+        &mut self,
+        request: &ExecutionRequest,
+        observer: &mut dyn FnMut(Phase),
+    ) -> ExecutionReport {
+        let began = self.clock.now();
+        let mut report = ExecutionReport::new();
+        let result = self.run(request, &mut report, began, observer);
+        match result {
+            Ok(()) => report.outcome = Outcome::Success,
+            Err(error) => {
+                tracing::error!(kind = error.kind(), "grasp failed: {error}");
+                report.failed_phase = Some(error.phase());
+                report.error_kind = Some(error.kind());
+                report.error = Some(error);
+                report.stop = Some(self.stop_all());
+                if self.hand_ready {
+                    report.hand_positions = self.hand.positions(self.call_timeout()).ok();
+                }
+            }
+        }
+        let status = self.arm.arm().status();
+        if status.last_seq.is_some() {
+            report.final_joints_rad = Some(status.measured_rad);
+            report.final_palm = Some(PoseJson::from(&self.robot.arm().palm(&status.measured_rad)));
+        }
+        report.total_s = secs(self.clock.now().saturating_sub(began));
+        report
+    }
+
+    fn call_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.config.hand_call_timeout_s)
+    }
+
+    /// Runs `body` as `phase`, recording it.
+    fn phase<T>(
+        &mut self,
+        phase: Phase,
+        report: &mut ExecutionReport,
+        began: Duration,
+        observer: &mut dyn FnMut(Phase),
+        body: impl FnOnce(&mut Self, &mut ExecutionReport) -> Result<T, ExecuteError>,
+    ) -> Result<T, ExecuteError> {
+        observer(phase);
+        tracing::info!(%phase, "phase begins");
+        let start = self.clock.now();
+        let result = body(self, report);
+        report.phases.push(PhaseReport {
+            phase,
+            started_s: secs(start.saturating_sub(began)),
+            duration_s: secs(self.clock.now().saturating_sub(start)),
+            ok: result.is_ok(),
+        });
+        result
+    }
+
+    fn run(
+        &mut self,
+        request: &ExecutionRequest,
+        report: &mut ExecutionReport,
+        began: Duration,
+        observer: &mut dyn FnMut(Phase),
+    ) -> Result<(), ExecuteError> {
+        let status = self.phase(Phase::ArmReady, report, began, observer, |ex, _| {
+            ex.wait_arm_ready()
+        })?;
+        let plan = self.phase(Phase::Validate, report, began, observer, |ex, report| {
+            ex.validate(request, &status.commanded_rad, report)
+        })?;
+        if !self.hand_ready {
+            self.phase(Phase::HandBringup, report, began, observer, |ex, _| {
+                ex.bring_up_hand()
+            })?;
+        }
+        self.phase(Phase::Preshape, report, began, observer, |ex, report| {
+            ex.preshape(&plan, report)
+        })?;
+        let pregrasp = plan.request.pregrasp_joints_rad;
+        self.phase(Phase::Pregrasp, report, began, observer, |ex, report| {
+            let start = ex.commanded();
+            report.pregrasp_move =
+                Some(ex.move_along(Phase::Pregrasp, "pregrasp move", &[start, pregrasp], None)?);
+            Ok(())
+        })?;
+        self.phase(Phase::Approach, report, began, observer, |ex, report| {
+            let start = ex.commanded();
+            let path = straight_line(
+                &ex.robot,
+                &start,
+                &plan.request.palm,
+                Some(&plan.request.joints_rad),
+                &ex.config.path,
+            )
+            .map_err(|source| ExecuteError::Path {
+                phase: Phase::Approach,
+                motion: "approach",
+                source,
+            })?;
+            report.approach =
+                Some(ex.move_along(Phase::Approach, "approach", &path.waypoints, Some(&path))?);
+            Ok(())
+        })?;
+        let contacts = self.phase(Phase::Close, report, began, observer, |ex, report| {
+            ex.close(report)
+        })?;
+        self.phase(Phase::Lift, report, began, observer, |ex, report| {
+            let start = ex.commanded();
+            let target = ex.lifted(&ex.robot.arm().palm(&start));
+            let path = straight_line(&ex.robot, &start, &target, None, &ex.config.path).map_err(
+                |source| ExecuteError::Path {
+                    phase: Phase::Lift,
+                    motion: "lift",
+                    source,
+                },
+            )?;
+            report.lift = Some(ex.move_along(Phase::Lift, "lift", &path.waypoints, Some(&path))?);
+            Ok(())
+        })?;
+        self.phase(Phase::Hold, report, began, observer, |ex, report| {
+            ex.hold(&contacts, report)
+        })
+    }
+
+    /// The joints the arm is commanded to now.
+    fn commanded(&self) -> ArmJoints {
+        self.arm.arm().status().commanded_rad
+    }
+
+    /// `palm` moved straight up by the lift height.
+    fn lifted(&self, palm: &Pose) -> Pose {
+        Translation3::new(0.0, 0.0, self.config.lift_m) * palm
+    }
+
+    fn wait_arm_ready(&mut self) -> Result<FriStatus, ExecuteError> {
+        let start = self.clock.now();
+        let timeout = Duration::from_secs_f64(self.config.arm_ready_timeout_s);
+        loop {
+            let status = self.arm.arm().status();
+            if status.commanding {
+                return Ok(status);
+            }
+            let waited = self.clock.now().saturating_sub(start);
+            if waited >= timeout {
+                return Err(ExecuteError::ArmNotReady {
+                    waited_s: secs(waited),
+                    state: status.state,
+                    quality: status.quality,
+                });
+            }
+            self.clock
+                .sleep(Duration::from_secs_f64(self.config.poll_s));
+        }
+    }
+
+    /// Checks every planned motion before anything moves.
+    fn validate(
+        &mut self,
+        request: &ExecutionRequest,
+        current: &ArmJoints,
+        report: &mut ExecutionReport,
+    ) -> Result<Plan, ExecuteError> {
+        const PHASE: Phase = Phase::Validate;
+        let request = request.validate()?;
+        let preshape = HandPose {
+            spread_rad: request.spread_rad,
+            flex_rad: [0.0; 3],
+        };
+        let pregrasp_move = self.plan_motion(
+            PHASE,
+            "pregrasp move",
+            &[*current, request.pregrasp_joints_rad],
+            None,
+            &preshape,
+        )?;
+        for (which, joints, pose) in [
+            ("pregrasp", &request.pregrasp_joints_rad, &request.pregrasp),
+            ("grasp", &request.joints_rad, &request.palm),
+        ] {
+            let (pos_err_m, rot_err_rad) = pose_error(&self.robot.arm().palm(joints), pose);
+            if pos_err_m > self.config.plan_tolerance_m
+                || rot_err_rad > self.config.plan_tolerance_rad
+            {
+                return Err(ExecuteError::PlanMismatch {
+                    which,
+                    pos_err_m,
+                    rot_err_rad,
+                    max_pos_m: self.config.plan_tolerance_m,
+                    max_rot_rad: self.config.plan_tolerance_rad,
+                });
+            }
+        }
+        let path_error = |motion| {
+            move |source| ExecuteError::Path {
+                phase: PHASE,
+                motion,
+                source,
+            }
+        };
+        let approach = straight_line(
+            &self.robot,
+            &request.pregrasp_joints_rad,
+            &request.palm,
+            Some(&request.joints_rad),
+            &self.config.path,
+        )
+        .map_err(path_error("approach"))?;
+        let approach_report = self.plan_motion(
+            PHASE,
+            "approach",
+            &approach.waypoints,
+            Some(&approach),
+            &preshape,
+        )?;
+        let lift_target = self.lifted(&self.robot.arm().palm(&approach.end()));
+        let lift = straight_line(
+            &self.robot,
+            &approach.end(),
+            &lift_target,
+            None,
+            &self.config.path,
+        )
+        .map_err(path_error("lift"))?;
+        // With the hand open: checked again with the measured hand before the lift.
+        let lift_report =
+            self.plan_motion(PHASE, "lift", &lift.waypoints, Some(&lift), &preshape)?;
+        report.pregrasp_move = Some(pregrasp_move);
+        report.approach = Some(approach_report);
+        report.lift = Some(lift_report);
+        Ok(Plan { request, preshape })
+    }
+
+    /// Builds the trajectory of a motion; straight palm paths are speed-limited.
+    fn trajectory(
+        &self,
+        phase: Phase,
+        waypoints: &[ArmJoints],
+        path: Option<&StraightPath>,
+    ) -> Result<(Trajectory<JOINTS>, MotionReport), ExecuteError> {
+        let to_error = |source| ExecuteError::Trajectory { phase, source };
+        let limits = self.arm.limits().joint_limits().map_err(to_error)?;
+        let period = self.arm.limits().check_period_s;
+        let (trajectory, peak) = match path {
+            Some(_) => palm_speed_limited(
+                &self.robot,
+                waypoints,
+                &limits,
+                self.config.palm_speed_m_s,
+                period,
+            )
+            .map_err(to_error)?,
+            None => {
+                let t = Trajectory::through(waypoints, &limits).map_err(to_error)?;
+                let peak = peak_palm_speed(&self.robot, &t, period);
+                (t, peak)
+            }
+        };
+        let report = MotionReport {
+            method: path.map(|p| p.method),
+            waypoints: waypoints.len(),
+            duration_s: trajectory.duration_s(),
+            peak_palm_speed_m_s: peak,
+            max_position_deviation_m: path.map(|p| p.max_position_deviation_m),
+            max_rotation_deviation_rad: path.map(|p| p.max_rotation_deviation_rad),
+        };
+        Ok((trajectory, report))
+    }
+
+    /// Builds and checks a motion with the hand shaped as `hand`.
+    fn plan_motion(
+        &self,
+        phase: Phase,
+        motion: &'static str,
+        waypoints: &[ArmJoints],
+        path: Option<&StraightPath>,
+        hand: &HandPose,
+    ) -> Result<MotionReport, ExecuteError> {
+        let (trajectory, report) = self.trajectory(phase, waypoints, path)?;
+        self.arm
+            .check_with(&trajectory, hand)
+            .map_err(|source| ExecuteError::Unsafe {
+                phase,
+                motion,
+                source: Box::new(source),
+            })?;
+        Ok(report)
+    }
+
+    /// Moves the arm through `waypoints` (the first is where it is commanded),
+    /// through the safety layer, under the watchdog.
+    fn move_along(
+        &mut self,
+        phase: Phase,
+        motion: &'static str,
+        waypoints: &[ArmJoints],
+        path: Option<&StraightPath>,
+    ) -> Result<MotionReport, ExecuteError> {
+        let (trajectory, report) = self.trajectory(phase, waypoints, path)?;
+        let deadline_s = trajectory.duration_s() * self.config.motion_timeout_factor
+            + self.config.motion_timeout_margin_s;
+        let start = self.clock.now();
+        let id = self.arm.start_trajectory(trajectory).map_err(|e| match e {
+            SafeArmError::Unsafe(source) => ExecuteError::Unsafe {
+                phase,
+                motion,
+                source: Box::new(source),
+            },
+            SafeArmError::Arm(source) => ExecuteError::from_arm(phase, source),
+        })?;
+        loop {
+            if let Some(outcome) = self.arm.arm().motion_outcome(id) {
+                return outcome
+                    .map(|()| report)
+                    .map_err(|e| ExecuteError::from_arm(phase, e));
+            }
+            let elapsed_s = secs(self.clock.now().saturating_sub(start));
+            if elapsed_s > deadline_s {
+                self.arm.arm().stop();
+                return Err(ExecuteError::PhaseTimeout {
+                    phase,
+                    elapsed_s,
+                    deadline_s,
+                });
+            }
+            self.clock
+                .sleep(Duration::from_secs_f64(self.config.poll_s));
+        }
+    }
+
+    /// Fails when the arm is no longer commanded as it should be.
+    fn check_arm(&self, phase: Phase) -> Result<FriStatus, ExecuteError> {
+        let s = self.arm.arm().status();
+        if s.late {
+            Err(ExecuteError::ArmMeasurementLate {
+                phase,
+                waited_s: None,
+                timeout_s: None,
+            })
+        } else if s.state != FriState::Command {
+            Err(ExecuteError::ArmDroppedToMonitor {
+                phase,
+                state: s.state,
+                quality: s.quality,
+            })
+        } else if !s.commanding {
+            Err(ExecuteError::Arm {
+                phase,
+                source: FriError::NotCommanding {
+                    state: s.state,
+                    quality: s.quality,
+                    power: s.power,
+                },
+            })
+        } else {
+            Ok(s)
+        }
+    }
+
+    fn hand_error(phase: Phase) -> impl Fn(crate::hw::hand::HandError) -> ExecuteError {
+        move |source| ExecuteError::Hand { phase, source }
+    }
+
+    fn bring_up_hand(&mut self) -> Result<(), ExecuteError> {
+        const PHASE: Phase = Phase::HandBringup;
+        self.hand_touched = true;
+        let timeout = Duration::from_secs_f64(self.config.hand_bringup_timeout_s);
+        self.hand.wake(timeout).map_err(Self::hand_error(PHASE))?;
+        self.check_arm(PHASE)?;
+        let info = self
+            .hand
+            .identify(timeout)
+            .map_err(Self::hand_error(PHASE))?;
+        tracing::info!(?info, "hand identified");
+        self.check_arm(PHASE)?;
+        self.hand
+            .initialise(timeout)
+            .map_err(Self::hand_error(PHASE))?;
+        self.check_arm(PHASE)?;
+        self.hand_ready = true;
+        Ok(())
+    }
+
+    fn preshape(&mut self, plan: &Plan, report: &mut ExecutionReport) -> Result<(), ExecuteError> {
+        const PHASE: Phase = Phase::Preshape;
+        let timeout = self.call_timeout();
+        let target = HandPositions {
+            fingers_rad: plan.preshape.flex_rad,
+            spread_rad: plan.preshape.spread_rad,
+        };
+        self.hand
+            .move_to(&target, timeout)
+            .map_err(Self::hand_error(PHASE))?;
+        self.check_arm(PHASE)?;
+        let positions = self
+            .hand
+            .positions(timeout)
+            .map_err(Self::hand_error(PHASE))?;
+        self.arm.set_hand(hand_pose(&positions));
+        report.hand_positions = Some(positions);
+        report.strain_baseline = Some(self.hand.strain(timeout).map_err(Self::hand_error(PHASE))?);
+        self.check_arm(PHASE)?;
+        Ok(())
+    }
+
+    /// Closes the hand; returns the fingers in contact with their positions (rad).
+    fn close(&mut self, report: &mut ExecutionReport) -> Result<Vec<(Puck, f64)>, ExecuteError> {
+        const PHASE: Phase = Phase::Close;
+        let timeout = self.call_timeout();
+        let outcomes = self.hand.close(timeout).map_err(Self::hand_error(PHASE))?;
+        self.check_arm(PHASE)?;
+        let positions = self
+            .hand
+            .positions(timeout)
+            .map_err(Self::hand_error(PHASE))?;
+        let strain = self.hand.strain(timeout).map_err(Self::hand_error(PHASE))?;
+        self.check_arm(PHASE)?;
+        self.arm.set_hand(hand_pose(&positions));
+        let baseline = report.strain_baseline.unwrap_or([0; 3]);
+        let strain_rise: [i32; 3] = std::array::from_fn(|i| strain[i] - baseline[i]);
+        let stalled: [bool; 3] = std::array::from_fn(|i| {
+            outcomes
+                .iter()
+                .find(|o| o.puck == Puck::FINGERS[i])
+                .is_some_and(|o| !o.reached_target)
+        });
+        let threshold = self.config.contact_strain_rise;
+        let contacts: Vec<(Puck, f64)> = (0..3)
+            .filter(|&i| stalled[i] && strain_rise[i] >= threshold)
+            .map(|i| (Puck::FINGERS[i], positions.fingers_rad[i]))
+            .collect();
+        report.close = outcomes;
+        report.hand_positions = Some(positions);
+        report.strain = Some(strain);
+        report.fingers_in_contact = contacts.iter().map(|c| c.0).collect();
+        if contacts.len() < self.config.min_contact_fingers {
+            return Err(ExecuteError::NoContact {
+                in_contact: contacts.len(),
+                required: self.config.min_contact_fingers,
+                stalled,
+                strain_rise,
+                threshold,
+            });
+        }
+        Ok(contacts)
+    }
+
+    fn hold(
+        &mut self,
+        contacts: &[(Puck, f64)],
+        report: &mut ExecutionReport,
+    ) -> Result<(), ExecuteError> {
+        const PHASE: Phase = Phase::Hold;
+        let timeout = self.call_timeout();
+        let start = self.clock.now();
+        let end = start + Duration::from_secs_f64(self.config.hold_s);
+        let baseline = report.strain_baseline.unwrap_or([0; 3]);
+        let threshold = self.config.contact_strain_rise;
+        loop {
+            self.clock
+                .sleep(Duration::from_secs_f64(self.config.hold_poll_s));
+            self.check_arm(PHASE)?;
+            let strain = self.hand.strain(timeout).map_err(Self::hand_error(PHASE))?;
+            let positions = self
+                .hand
+                .positions(timeout)
+                .map_err(Self::hand_error(PHASE))?;
+            self.check_arm(PHASE)?;
+            report.strain = Some(strain);
+            report.hand_positions = Some(positions);
+            let at_s = secs(self.clock.now().saturating_sub(start));
+            for &(finger, contact_rad) in contacts {
+                let i = finger.index();
+                let strain_rise = strain[i] - baseline[i];
+                let position_rad = positions.fingers_rad[i];
+                if strain_rise < threshold
+                    || (position_rad - contact_rad).abs() > self.config.slip_tolerance_rad
+                {
+                    return Err(ExecuteError::GraspLost {
+                        finger,
+                        at_s,
+                        strain_rise,
+                        threshold,
+                        position_rad,
+                        contact_rad,
+                    });
+                }
+            }
+            if self.clock.now() >= end {
+                return Ok(());
+            }
+        }
+    }
+
+    /// Stops both devices (hold position) and says what that did.
+    fn stop_all(&mut self) -> StopReport {
+        self.arm.arm().stop();
+        let hand = if !self.hand_touched {
+            "never commanded: nothing to stop".to_string()
+        } else {
+            match self.hand.stop(self.call_timeout()) {
+                Ok(()) => "holding: MODE 3 (PID position hold) on all four pucks".to_string(),
+                Err(e) => format!("stop failed: {e}"),
+            }
+        };
+        self.clock
+            .sleep(Duration::from_secs_f64(self.config.stop_settle_s));
+        let s = self.arm.arm().status();
+        let arm = if s.last_seq.is_none() {
+            "never heard from the robot: nothing was commanded".to_string()
+        } else if s.late {
+            format!(
+                "no measurements: the driver holds its last command {:.4?} rad; the robot stops itself as the link fails",
+                s.commanded_rad
+            )
+        } else if s.state != FriState::Command {
+            format!(
+                "robot in {:?} mode: the KRC holds the arm at {:.4?} rad",
+                s.state, s.measured_rad
+            )
+        } else {
+            format!(
+                "holding at {:.4?} rad (commanded; measured {:.4?} rad)",
+                s.commanded_rad, s.measured_rad
+            )
+        };
+        StopReport { arm, hand }
+    }
+}
+
+/// The hand shape for collision checks from measured positions.
+fn hand_pose(positions: &HandPositions) -> HandPose {
+    HandPose {
+        spread_rad: positions.spread_rad,
+        flex_rad: positions.fingers_rad,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::ManualClock;
+    use crate::execute::lockstep::LockstepArm;
+    use crate::execute::SafetyError;
+    use crate::geometry::pose_from_params;
+    use crate::hw::can::{CanBus, VirtualBus};
+    use crate::hw::fri::{FriStatus, Quality};
+    use crate::hw::hand::{HandError, HandTiming};
+    use crate::robot::shipped_robot;
+    use crate::sim::fri::{DropReason, SimConfig};
+    use crate::sim::puck::{EmulatorThread, HandEmulator, HandEmulatorConfig};
+    use std::f64::consts::PI;
+
+    /// Where the simulated arm starts: palm about 0.48 m over the table, facing down.
+    const HOME: ArmJoints = [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0];
+    const CONTACT_RAD: [f64; 3] = [1.0, 1.1, 1.2];
+
+    fn cell() -> CellConfig {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(crate::config::DEFAULT_CONFIG_PATH);
+        CellConfig::load(&path).unwrap()
+    }
+
+    /// A top-down grasp at (0.6, 0, 0.20) from 0.10 m above, solved independently
+    /// of the executor.
+    fn request(robot: &Robot) -> ExecutionRequest {
+        let palm = pose_from_params(&[0.6, 0.0, 0.20, PI, 0.0, PI]);
+        let pregrasp = pose_from_params(&[0.6, 0.0, 0.30, PI, 0.0, PI]);
+        let pre = robot.reach(&pregrasp, &HandPose::OPEN, &[HOME]).unwrap();
+        let grasp = robot.reach(&palm, &HandPose::OPEN, &[pre.joints]).unwrap();
+        ExecutionRequest {
+            palm: PoseJson::from(&palm),
+            pregrasp: PoseJson::from(&pregrasp),
+            joints_rad: grasp.joints,
+            pregrasp_joints_rad: pre.joints,
+            spread_rad: 0.3,
+        }
+    }
+
+    struct Rig {
+        arm: LockstepArm,
+        hand: std::cell::RefCell<Option<Hand<Box<dyn CanBus>>>>,
+        clock: Arc<dyn Clock>,
+        robot: Arc<Robot>,
+        _emulator: EmulatorThread,
+    }
+
+    impl Rig {
+        fn new(emulator: HandEmulatorConfig) -> Rig {
+            let bus = VirtualBus::new("execute-unit");
+            let node = bus.endpoint();
+            let probe = node.idle_probe();
+            let clock: Arc<dyn Clock> = Arc::new(ManualClock::new().with_settle(move || {
+                probe.wait_idle(Duration::from_secs(5));
+            }));
+            let emulator = HandEmulator::new(emulator, Arc::clone(&clock))
+                .unwrap()
+                .spawn(node);
+            let hand = Hand::new(
+                Box::new(bus.endpoint()) as Box<dyn CanBus>,
+                Arc::clone(&clock),
+                HandTiming::default(),
+            );
+            let arm = LockstepArm::new(
+                SimConfig {
+                    initial_joints_rad: HOME,
+                    ..SimConfig::from_robot(&shipped_robot())
+                },
+                0.1,
+                Arc::clone(&clock),
+            );
+            Rig {
+                arm,
+                hand: std::cell::RefCell::new(Some(hand)),
+                clock,
+                robot: Arc::new(shipped_robot()),
+                _emulator: emulator,
+            }
+        }
+
+        fn grasping() -> Rig {
+            Rig::new(HandEmulatorConfig {
+                contact_rad: [
+                    Some(CONTACT_RAD[0]),
+                    Some(CONTACT_RAD[1]),
+                    Some(CONTACT_RAD[2]),
+                    None,
+                ],
+                ..HandEmulatorConfig::default()
+            })
+        }
+
+        fn executor<A: Arm>(&self, arm: A) -> Executor<A, Box<dyn CanBus>> {
+            Executor::from_cell(
+                arm,
+                self.hand.borrow_mut().take().unwrap(),
+                Arc::clone(&self.robot),
+                &cell(),
+                Arc::clone(&self.clock),
+            )
+        }
+
+        fn sim_joints(&self) -> ArmJoints {
+            self.arm.with_sim(|s| s.joints_rad())
+        }
+    }
+
+    fn phases(report: &ExecutionReport) -> Vec<Phase> {
+        report.phases.iter().map(|p| p.phase).collect()
+    }
+
+    #[test]
+    fn completes_a_grasp_lifts_and_holds() {
+        let rig = Rig::grasping();
+        let robot = Arc::clone(&rig.robot);
+        let req = request(&robot);
+        let mut seen = Vec::new();
+        let report = {
+            let mut ex = rig.executor(&rig.arm);
+            ex.execute_observed(&req, &mut |p| seen.push(p))
+        };
+        assert_eq!(report.outcome, Outcome::Success, "{}", report.human());
+        let all = vec![
+            Phase::ArmReady,
+            Phase::Validate,
+            Phase::HandBringup,
+            Phase::Preshape,
+            Phase::Pregrasp,
+            Phase::Approach,
+            Phase::Close,
+            Phase::Lift,
+            Phase::Hold,
+        ];
+        assert_eq!(phases(&report), all);
+        assert_eq!(seen, all);
+        assert!(report.phases.iter().all(|p| p.ok));
+        let hold = report.phases.last().unwrap();
+        assert!(hold.duration_s >= 2.0, "{hold:?}");
+        // The simulated robot (not the driver's view) ends 0.10 m above the grasp.
+        let q = rig.sim_joints();
+        let palm = robot.arm().palm(&q).translation.vector;
+        assert!((palm.x - 0.6).abs() < 1e-3, "{palm:?}");
+        assert!(palm.y.abs() < 1e-3, "{palm:?}");
+        assert!((palm.z - 0.30).abs() < 1e-3, "{palm:?}");
+        assert_eq!(rig.arm.with_sim(|s| s.drop_reason()), None);
+        // Fingers stopped on the object, with strain; the spread as planned.
+        assert_eq!(report.fingers_in_contact, Puck::FINGERS.to_vec());
+        let hand = report.hand_positions.unwrap();
+        for (got, want) in hand.fingers_rad.iter().zip(CONTACT_RAD) {
+            assert!((got - want).abs() < 1e-3, "{hand:?}");
+        }
+        assert!((hand.spread_rad - 0.3).abs() < 1e-3, "{hand:?}");
+        let rise: Vec<i32> = (0..3)
+            .map(|i| report.strain.unwrap()[i] - report.strain_baseline.unwrap()[i])
+            .collect();
+        assert_eq!(rise, [900; 3]);
+        // Approach and lift kept the palm speed limit.
+        for m in [&report.approach, &report.lift] {
+            let m = m.as_ref().unwrap();
+            assert!(m.peak_palm_speed_m_s <= 0.2 + 1e-9, "{m:?}");
+            assert!(m.method.is_some());
+        }
+        let json = serde_json::to_value(&report).unwrap();
+        assert_eq!(json["outcome"], "success");
+        assert_eq!(json["phases"].as_array().unwrap().len(), 9);
+    }
+
+    #[test]
+    fn withheld_answers_drop_the_robot_to_monitor_and_the_arm_holds() {
+        let rig = Rig::grasping();
+        let req = request(&rig.robot);
+        let arm = &rig.arm;
+        let mut ex = rig.executor(arm);
+        let report = ex.execute_observed(&req, &mut |p| {
+            if p == Phase::Approach {
+                arm.set_withhold_answers(true);
+            }
+        });
+        let err = report.error.as_ref().unwrap();
+        assert!(
+            matches!(
+                err,
+                ExecuteError::ArmDroppedToMonitor {
+                    phase: Phase::Approach,
+                    state: FriState::Monitor,
+                    quality: Quality::Unacceptable,
+                }
+            ),
+            "{err}"
+        );
+        assert_eq!(report.error_kind, Some("arm_dropped_to_monitor"));
+        assert!(matches!(
+            arm.with_sim(|s| s.drop_reason()),
+            Some(DropReason::LinkQuality { .. })
+        ));
+        // The arm stopped between pre-grasp and grasp, and stays there.
+        let stopped = arm.with_sim(|s| s.joints_rad());
+        let z = rig.robot.arm().palm(&stopped).translation.z;
+        assert!(z > 0.20 + 1e-3 && z <= 0.30 + 1e-6, "palm at z = {z}");
+        rig.clock.sleep(Duration::from_secs(1));
+        assert_eq!(arm.with_sim(|s| s.joints_rad()), stopped);
+        let stop = report.stop.as_ref().unwrap();
+        assert!(stop.arm.contains("KRC holds"), "{stop:?}");
+        assert!(stop.hand.starts_with("holding"), "{stop:?}");
+    }
+
+    #[test]
+    fn a_silent_robot_is_a_late_measurement() {
+        let rig = Rig::grasping();
+        let req = request(&rig.robot);
+        let arm = &rig.arm;
+        let mut ex = rig.executor(arm);
+        let report = ex.execute_observed(&req, &mut |p| {
+            if p == Phase::Hold {
+                arm.set_silent(true);
+            }
+        });
+        let err = report.error.as_ref().unwrap();
+        assert!(
+            matches!(
+                err,
+                ExecuteError::ArmMeasurementLate {
+                    phase: Phase::Hold,
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        assert!(report
+            .stop
+            .as_ref()
+            .unwrap()
+            .arm
+            .contains("no measurements"));
+    }
+
+    #[test]
+    fn a_missing_puck_fails_bring_up_naming_it_before_the_arm_moves() {
+        let rig = Rig::new(HandEmulatorConfig {
+            present: [true, false, true, true],
+            ..HandEmulatorConfig::default()
+        });
+        let req = request(&rig.robot);
+        let report = rig.executor(&rig.arm).execute(&req);
+        let err = report.error.as_ref().unwrap();
+        assert!(
+            matches!(
+                err,
+                ExecuteError::Hand {
+                    phase: Phase::HandBringup,
+                    source: HandError::NoReply { puck: Puck::F2, .. }
+                }
+            ),
+            "{err}"
+        );
+        assert!(err.to_string().contains("F2 (node 12)"), "{err}");
+        assert_eq!(report.error_kind, Some("hand_no_reply"));
+        assert!(report.stop.as_ref().unwrap().hand.contains("F2"));
+        let q = rig.sim_joints();
+        assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-6), "{q:?}");
+    }
+
+    #[test]
+    fn no_object_means_no_contact_and_the_arm_holds_at_the_grasp() {
+        let rig = Rig::new(HandEmulatorConfig::default());
+        let req = request(&rig.robot);
+        let report = rig.executor(&rig.arm).execute(&req);
+        let err = report.error.as_ref().unwrap();
+        assert!(
+            matches!(
+                err,
+                ExecuteError::NoContact {
+                    in_contact: 0,
+                    required: 2,
+                    stalled: [false, false, false],
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        let palm = rig.robot.arm().palm(&rig.sim_joints()).translation.vector;
+        assert!((palm.z - 0.20).abs() < 1e-3, "{palm:?}");
+    }
+
+    #[test]
+    fn an_unsafe_plan_is_refused_before_anything_moves() {
+        let rig = Rig::grasping();
+        let mut req = request(&rig.robot);
+        req.pregrasp_joints_rad[5] = -2.2;
+        req.pregrasp = PoseJson::from(&rig.robot.arm().palm(&req.pregrasp_joints_rad));
+        let report = rig.executor(&rig.arm).execute(&req);
+        assert_eq!(phases(&report), [Phase::ArmReady, Phase::Validate]);
+        let err = report.error.as_ref().unwrap();
+        assert!(
+            matches!(
+                err,
+                ExecuteError::Unsafe {
+                    phase: Phase::Validate,
+                    motion: "pregrasp move",
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        let Some(SafetyError::OutOfLimit {
+            joint,
+            position_rad,
+            limit_rad,
+            ..
+        }) = err.safety_violation()
+        else {
+            panic!("{err}");
+        };
+        assert_eq!(joint, "lbr_a5");
+        assert_eq!(*position_rad, -2.2);
+        assert!((limit_rad + 2.084395).abs() < 1e-12);
+        let q = rig.sim_joints();
+        assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-6), "{q:?}");
+        let emulator = rig._emulator.stop().unwrap().0;
+        assert_eq!(emulator.stats().received, 0, "the hand was never addressed");
+    }
+
+    #[test]
+    fn joints_that_miss_the_pose_are_a_plan_mismatch() {
+        let rig = Rig::grasping();
+        let mut req = request(&rig.robot);
+        req.palm.xyz[1] += 0.05;
+        let report = rig.executor(&rig.arm).execute(&req);
+        let err = report.error.as_ref().unwrap();
+        assert!(
+            matches!(err, ExecuteError::PlanMismatch { which: "grasp", pos_err_m, .. } if (pos_err_m - 0.05).abs() < 1e-3),
+            "{err}"
+        );
+    }
+
+    /// An arm whose motions never end.
+    struct Stuck<'a>(&'a LockstepArm);
+
+    impl Arm for Stuck<'_> {
+        fn status(&self) -> FriStatus {
+            self.0.status()
+        }
+        fn start_trajectory(&self, t: Trajectory<JOINTS>) -> Result<u64, FriError> {
+            self.0.start_trajectory(t)
+        }
+        fn motion_outcome(&self, _id: u64) -> Option<Result<(), FriError>> {
+            None
+        }
+        fn stop(&self) {
+            self.0.stop()
+        }
+    }
+
+    #[test]
+    fn the_watchdog_stops_a_motion_past_its_deadline() {
+        let rig = Rig::grasping();
+        let req = request(&rig.robot);
+        let arm = &rig.arm;
+        let mut ex = rig.executor(Stuck(arm));
+        let report = ex.execute(&req);
+        let pregrasp = report.pregrasp_move.as_ref().unwrap();
+        let err = report.error.as_ref().unwrap();
+        let ExecuteError::PhaseTimeout {
+            phase: Phase::Pregrasp,
+            elapsed_s,
+            deadline_s,
+        } = err
+        else {
+            panic!("{err}");
+        };
+        assert!((deadline_s - (pregrasp.duration_s * 1.5 + 2.0)).abs() < 1e-9);
+        assert!(elapsed_s > deadline_s);
+        assert!(report.stop.as_ref().unwrap().arm.starts_with("holding"));
+        // The motion itself had ended: the arm is at the pre-grasp joints, holding.
+        let q = arm.with_sim(|s| s.joints_rad());
+        let want = req.pregrasp_joints_rad;
+        assert!((0..7).all(|j| (q[j] - want[j]).abs() < 1e-5), "{q:?}");
+    }
+}

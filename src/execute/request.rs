@@ -1,0 +1,160 @@
+//! What the executor is asked to do: one grasp, as the planner chose it.
+
+use crate::geometry::{check_finite, Pose, PoseJson};
+use crate::hw::fri::JOINTS;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+use std::path::Path;
+
+/// Errors of reading or validating a request; each names the field.
+#[derive(Debug, thiserror::Error)]
+pub enum RequestError {
+    /// The file could not be read.
+    #[error("cannot read plan {path}: {source}")]
+    Read {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The JSON does not match the schema.
+    #[error("plan {path}: {message}")]
+    Parse {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The parser's message, with line and column.
+        message: String,
+    },
+    /// A value is not usable.
+    #[error("plan field {field}: {problem}")]
+    Invalid {
+        /// The field.
+        field: &'static str,
+        /// What is wrong.
+        problem: String,
+    },
+}
+
+/// One grasp to execute: palm poses (robot base frame) and the planner's joint
+/// solutions for them, and the hand's spread.
+///
+/// The planner's grasp plan maps into this; as JSON it is
+/// `{"palm": pose, "pregrasp": pose, "joints_rad": [7], "pregrasp_joints_rad": [7],
+/// "spread_rad": s}` with poses as `{"xyz": [..], "rpy": [..]}`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExecutionRequest {
+    /// Palm pose at the grasp: `base_from_palm`.
+    pub palm: PoseJson,
+    /// Palm pose before the approach, backed off along the palm's -z.
+    pub pregrasp: PoseJson,
+    /// Arm joints (A1, A2, E1, A3, A4, A5, A6) that put the palm at `palm` (rad).
+    pub joints_rad: [f64; JOINTS],
+    /// Arm joints that put the palm at `pregrasp` (rad).
+    pub pregrasp_joints_rad: [f64; JOINTS],
+    /// Spread of F1 and F2 (0 to pi rad) to pre-shape before the approach.
+    pub spread_rad: f64,
+}
+
+/// A validated request with its poses decoded.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ValidRequest {
+    /// Palm at the grasp.
+    pub palm: Pose,
+    /// Palm before the approach.
+    pub pregrasp: Pose,
+    /// Joints at the grasp (rad).
+    pub joints_rad: [f64; JOINTS],
+    /// Joints at the pre-grasp (rad).
+    pub pregrasp_joints_rad: [f64; JOINTS],
+    /// Spread (rad).
+    pub spread_rad: f64,
+}
+
+impl ExecutionRequest {
+    /// Reads a request from a JSON file.
+    pub fn load(path: &Path) -> Result<ExecutionRequest, RequestError> {
+        let text = std::fs::read_to_string(path).map_err(|source| RequestError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        serde_json::from_str(&text).map_err(|e| RequestError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })
+    }
+
+    /// Checks every number is finite and the spread in range; decodes the poses.
+    pub fn validate(&self) -> Result<ValidRequest, RequestError> {
+        let invalid = |field, problem: String| RequestError::Invalid { field, problem };
+        let palm = self
+            .palm
+            .to_pose("palm")
+            .map_err(|e| invalid("palm", e.to_string()))?;
+        let pregrasp = self
+            .pregrasp
+            .to_pose("pregrasp")
+            .map_err(|e| invalid("pregrasp", e.to_string()))?;
+        check_finite(&self.joints_rad, "joints_rad")
+            .map_err(|e| invalid("joints_rad", e.to_string()))?;
+        check_finite(&self.pregrasp_joints_rad, "pregrasp_joints_rad")
+            .map_err(|e| invalid("pregrasp_joints_rad", e.to_string()))?;
+        if !(0.0..=PI).contains(&self.spread_rad) {
+            return Err(invalid(
+                "spread_rad",
+                format!("{} rad is outside 0..=pi", self.spread_rad),
+            ));
+        }
+        Ok(ValidRequest {
+            palm,
+            pregrasp,
+            joints_rad: self.joints_rad,
+            pregrasp_joints_rad: self.pregrasp_joints_rad,
+            spread_rad: self.spread_rad,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn request() -> ExecutionRequest {
+        ExecutionRequest {
+            palm: PoseJson {
+                xyz: [0.6, 0.0, 0.15],
+                rpy: Some([PI, 0.0, PI]),
+                quat_xyzw: None,
+            },
+            pregrasp: PoseJson {
+                xyz: [0.6, 0.0, 0.25],
+                rpy: Some([PI, 0.0, PI]),
+                quat_xyzw: None,
+            },
+            joints_rad: [0.0, -1.0, 0.0, 1.4, 0.0, -0.74, 0.0],
+            pregrasp_joints_rad: [0.0, -0.83, 0.0, 1.41, 0.0, -0.9, 0.0],
+            spread_rad: 0.5,
+        }
+    }
+
+    #[test]
+    fn json_round_trip_and_bad_fields_are_named() {
+        let r = request();
+        let text = serde_json::to_string(&r).unwrap();
+        assert_eq!(serde_json::from_str::<ExecutionRequest>(&text).unwrap(), r);
+        let v = r.validate().unwrap();
+        assert_eq!(v.palm.translation.vector.z, 0.15);
+        let mut bad = r.clone();
+        bad.spread_rad = 4.0;
+        let err = bad.validate().unwrap_err().to_string();
+        assert!(err.contains("spread_rad") && err.contains('4'), "{err}");
+        let mut bad = r.clone();
+        bad.pregrasp_joints_rad[3] = f64::NAN;
+        let err = bad.validate().unwrap_err().to_string();
+        assert!(err.contains("pregrasp_joints_rad"), "{err}");
+        let err = serde_json::from_str::<ExecutionRequest>(&text.replace("spread_rad", "sprd"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("sprd"), "{err}");
+    }
+}
