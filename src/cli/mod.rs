@@ -11,6 +11,7 @@ mod fri;
 pub mod ipc;
 mod objects;
 mod output;
+mod plan;
 mod quality;
 mod robot;
 mod trial;
@@ -60,6 +61,8 @@ pub enum Command {
     Camera(camera::CameraCommand),
     /// Grasp quality (Ferrari–Canny epsilon, wrench-space volume) of given contacts.
     Quality(quality::QualityArgs),
+    /// Plan a grasp: maximise eq. 2 over every model's task grasps, reachable, with the best-single baseline.
+    Plan(plan::PlanArgs),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -98,6 +101,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Objects(which) => objects::run(which),
         Command::Camera(which) => camera::run(&cli.config, which),
         Command::Quality(args) => quality::run(args),
+        Command::Plan(args) => plan::run(&cli.config, args),
         Command::Bench(which) => bench::run(&cli.config, which),
         Command::IpcPeer(args) => ipc::run_peer(args),
     }

@@ -10,6 +10,7 @@
 //! - [`nelder_mead`]: the simplex search of Lagarias et al. (Matlab's `fminsearch`).
 //! - [`planner`]: multi-start search, constraints, the plan and the best-single baseline.
 //! - [`input`]: the JSON files of fits and grasps read by `cell plan`.
+//! - [`synthetic`]: generated problems for benchmarks and tests.
 //!
 //! The planner's inputs are its own small types, [`ModelFit`] (one registered model)
 //! and [`ExampleGrasp`] (one task-labelled grasp of a model), so that registration and
@@ -22,6 +23,7 @@ pub mod nelder_mead;
 pub mod objective;
 pub mod planner;
 pub mod reach;
+pub mod synthetic;
 pub mod weights;
 
 pub use kernel::Kernel;

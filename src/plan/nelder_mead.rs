@@ -253,11 +253,107 @@ mod tests {
 
     #[test]
     fn rosenbrock_matches_fminsearch() {
-        // Matlab's documentation: fminsearch from [-1.2, 1] reaches f = 8.17766e-10.
+        // Matlab's documentation: from [-1.2, 1], f = 8.17766e-10 after 85 iterations
+        // and 159 evaluations; its banana example from [-1.9, 2]: 114 and 210.
         let r = nelder_mead(rosenbrock, &[-1.2, 1.0], &NelderMeadOptions::default());
-        println!("{r:?}");
         assert!(r.converged);
         assert!((r.fx - 8.17766e-10).abs() < 1e-14, "{}", r.fx);
         assert!((r.x[0] - 1.0).abs() < 1e-4 && (r.x[1] - 1.0).abs() < 1e-4);
+        assert_eq!((r.iterations, r.evaluations), (85, 159));
+        let r = nelder_mead(rosenbrock, &[-1.9, 2.0], &NelderMeadOptions::default());
+        assert!(r.converged && r.fx < 1e-8, "{r:?}");
+        assert_eq!((r.iterations, r.evaluations), (114, 210));
+    }
+
+    #[test]
+    fn first_steps_follow_the_rules_by_hand() {
+        // f = (x - 3)^2 from 1: simplex {1, 1.05}; reflect to 1.1 beats the best, so
+        // expand to 1.15 (kept, better); then reflect 1.25, expand 1.35.
+        let mut seen = Vec::new();
+        nelder_mead(
+            |x| {
+                seen.push(x[0]);
+                (x[0] - 3.0).powi(2)
+            },
+            &[1.0],
+            &NelderMeadOptions::default(),
+        );
+        let want = [1.0, 1.05, 1.1, 1.15, 1.25, 1.35];
+        for (got, want) in seen.iter().zip(want) {
+            assert!((got - want).abs() < 1e-12, "{seen:?}");
+        }
+        // From the minimum: simplex {3, 3.15}; the reflection 2.85 ties the worst, so
+        // contract inside (3.075), again (2.925 ties; 3.0375).
+        seen.clear();
+        nelder_mead(
+            |x| {
+                seen.push(x[0]);
+                (x[0] - 3.0).powi(2)
+            },
+            &[3.0],
+            &NelderMeadOptions::default(),
+        );
+        let want = [3.0, 3.15, 2.85, 3.075, 2.925, 3.0375];
+        for (got, want) in seen.iter().zip(want) {
+            assert!((got - want).abs() < 1e-12, "{seen:?}");
+        }
+        // A zero component starts at 0.00025.
+        seen.clear();
+        nelder_mead(
+            |x| {
+                seen.push(x[1]);
+                x[0] * x[0] + x[1] * x[1]
+            },
+            &[1.0, 0.0],
+            &NelderMeadOptions::default(),
+        );
+        assert_eq!(&seen[..3], &[0.0, 0.0, 0.00025]);
+    }
+
+    #[test]
+    fn ties_keep_the_first_vertex() {
+        // A constant function: every step ties, the simplex shrinks onto x0, which
+        // stays the best vertex.
+        let x0 = [0.3, -2.0, 5.0];
+        let r = nelder_mead(|_| 1.0, &x0, &NelderMeadOptions::default());
+        assert!(r.converged);
+        assert_eq!(r.x, x0.to_vec());
+        assert_eq!(r.fx, 1.0);
+    }
+
+    #[test]
+    fn quadratic_minimum_and_limits() {
+        let f = |x: &[f64]| (x[0] - 1.0).powi(2) + 2.0 * (x[1] + 2.0).powi(2) + 3.0 * (x[2] - 0.5).powi(2);
+        // The default tolerances stop within TolFun of the minimum value...
+        let r = nelder_mead(f, &[0.0, 0.0, 0.0], &NelderMeadOptions::default());
+        assert!(r.converged && r.fx < 1e-4, "{r:?}");
+        for (x, c) in r.x.iter().zip([1.0, -2.0, 0.5]) {
+            assert!((x - c).abs() < 1e-2, "{r:?}");
+        }
+        // ...tight ones at the minimum.
+        let tight = NelderMeadOptions {
+            tol_x: 1e-9,
+            tol_fun: 1e-14,
+            ..NelderMeadOptions::default()
+        };
+        let r = nelder_mead(f, &[0.0, 0.0, 0.0], &tight);
+        assert!(r.converged && r.fx < 1e-12, "{r:?}");
+        for (x, c) in r.x.iter().zip([1.0, -2.0, 0.5]) {
+            assert!((x - c).abs() < 1e-6, "{r:?}");
+        }
+        // An evaluation limit stops the search early, unconverged.
+        let options = NelderMeadOptions {
+            max_evaluations: Some(40),
+            ..NelderMeadOptions::default()
+        };
+        let r = nelder_mead(rosenbrock, &[-1.2, 1.0], &options);
+        assert!(!r.converged && (40..=42).contains(&r.evaluations), "{r:?}");
+        // NaN counts as +inf: the search walks away from where f is undefined.
+        let r = nelder_mead(
+            |x| if x[0] < 0.5 { f64::NAN } else { (x[0] - 2.0).powi(2) },
+            &[1.0],
+            &NelderMeadOptions::default(),
+        );
+        assert!((r.x[0] - 2.0).abs() < 1e-3, "{r:?}");
     }
 }

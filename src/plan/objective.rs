@@ -11,7 +11,6 @@ use super::kernel::{Kernel, KernelTerm};
 use super::weights::Weights;
 use super::{ExampleGrasp, ModelFit, PlanError};
 use crate::geometry::{param_difference, params_from_pose, pose_from_params, Pose, PoseParams};
-use nalgebra::{Rotation3, Vector3};
 
 /// One example grasp of the task, ready to evaluate.
 #[derive(Debug, Clone)]
@@ -29,11 +28,40 @@ struct Term {
     log_weight: f64,
 }
 
-/// `model_from_base` of one model, as a rotation matrix and a translation.
+/// `model_from_base` of one model, as a rotation matrix (rows) and a translation.
+/// Plain arrays: the hot loop stays fast without inlining nalgebra's generics.
 #[derive(Debug, Clone)]
 struct Frame {
-    rotation: Rotation3<f64>,
-    translation: Vector3<f64>,
+    rotation: [[f64; 3]; 3],
+    translation: [f64; 3],
+}
+
+/// `R = Rz(az) Ry(ay) Rx(ax)` as rows (the URDF rpy convention of `pose_from_params`).
+#[inline]
+fn rotation_from_rpy(ax: f64, ay: f64, az: f64) -> [[f64; 3]; 3] {
+    let (sr, cr) = ax.sin_cos();
+    let (sp, cp) = ay.sin_cos();
+    let (sy, cy) = az.sin_cos();
+    [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
+}
+
+/// The rpy angles of a rotation matrix, with the same branches as nalgebra's
+/// `Rotation3::euler_angles` (so as `params_from_pose`).
+#[inline]
+fn rpy_from_rotation(m: &[[f64; 3]; 3]) -> (f64, f64, f64) {
+    if m[2][0].abs() < 1.0 {
+        let pitch = -m[2][0].asin();
+        let c = pitch.cos();
+        ((m[2][1] / c).atan2(m[2][2] / c), pitch, (m[1][0] / c).atan2(m[0][0] / c))
+    } else if m[2][0] <= -1.0 {
+        (m[0][1].atan2(m[0][2]), std::f64::consts::FRAC_PI_2, 0.0)
+    } else {
+        (-m[0][1].atan2(-m[0][2]), -std::f64::consts::FRAC_PI_2, 0.0)
+    }
 }
 
 /// The objective of eq. 2 for one task, with everything that does not depend on the
@@ -190,9 +218,11 @@ impl Objective {
             if frame_of_model[grasp.model] == usize::MAX {
                 frame_of_model[grasp.model] = frames.len();
                 let model_from_base = fit.base_from_model.inverse();
+                let r = model_from_base.rotation.to_rotation_matrix();
+                let t = model_from_base.translation.vector;
                 frames.push(Frame {
-                    rotation: model_from_base.rotation.to_rotation_matrix(),
-                    translation: model_from_base.translation.vector,
+                    rotation: std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)])),
+                    translation: [t.x, t.y, t.z],
                 });
             }
             terms.push(Term {
@@ -225,18 +255,25 @@ impl Objective {
     /// pose `x` (world parameters).
     #[inline]
     fn for_each_term(&self, x: &PoseParams, mut visit: impl FnMut(&Term, f64)) {
-        let rotation = Rotation3::from_euler_angles(x[3], x[4], x[5]);
-        let translation = Vector3::new(x[0], x[1], x[2]);
+        let rotation = rotation_from_rpy(x[3], x[4], x[5]);
         let mut frame = usize::MAX;
         let mut local = [0.0; 6];
         for term in &self.terms {
             if term.frame != frame {
                 frame = term.frame;
                 let f = &self.frames[frame];
-                let r = f.rotation * rotation;
-                let t = f.rotation * translation + f.translation;
-                let (ax, ay, az) = r.euler_angles();
-                local = [t.x, t.y, t.z, ax, ay, az];
+                let a = &f.rotation;
+                // r = a * rotation, t = a * x + translation.
+                let r: [[f64; 3]; 3] = std::array::from_fn(|i| {
+                    std::array::from_fn(|j| {
+                        a[i][0] * rotation[0][j] + a[i][1] * rotation[1][j] + a[i][2] * rotation[2][j]
+                    })
+                });
+                let t: [f64; 3] = std::array::from_fn(|i| {
+                    a[i][0] * x[0] + a[i][1] * x[1] + a[i][2] * x[2] + f.translation[i]
+                });
+                let (ax, ay, az) = rpy_from_rotation(&r);
+                local = [t[0], t[1], t[2], ax, ay, az];
             }
             if term.log_weight == f64::NEG_INFINITY {
                 continue;
@@ -447,6 +484,27 @@ mod tests {
                 let sum: f64 = b.per_model_log.iter().map(|l| l.exp()).sum();
                 assert!((sum - got.exp()).abs() <= 1e-12 * got.exp().max(1e-300));
             }
+        }
+    }
+
+    #[test]
+    fn plain_rotations_match_nalgebra() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        for i in 0..1000 {
+            let mut p: [f64; 3] = std::array::from_fn(|_| rng.gen_range(-PI..PI));
+            if i % 10 == 0 {
+                p[1] = if i % 20 == 0 { PI / 2.0 } else { -PI / 2.0 }; // gimbal lock
+            }
+            let m = rotation_from_rpy(p[0], p[1], p[2]);
+            let r = nalgebra::Rotation3::from_euler_angles(p[0], p[1], p[2]);
+            for a in 0..3 {
+                for b in 0..3 {
+                    assert!((m[a][b] - r[(a, b)]).abs() < 1e-15);
+                }
+            }
+            let (x, y, z) = rpy_from_rotation(&m);
+            let (rx, ry, rz) = r.euler_angles();
+            assert!((x - rx).abs() < 1e-12 && (y - ry).abs() < 1e-12 && (z - rz).abs() < 1e-12);
         }
     }
 
