@@ -18,6 +18,7 @@ pub mod geometry;
 pub mod hw;
 pub mod ipc;
 pub mod mesh;
+pub mod plan;
 pub mod ply;
 pub mod quality;
 pub mod robot;

@@ -26,6 +26,8 @@ pub enum BenchCommand {
     QualityMetric(QualityMetricBenchArgs),
     /// Point cloud latency between processes: iceoryx2 against a Unix domain socket.
     Ipc(super::ipc::IpcBenchArgs),
+    /// Grasp planning: median time for 7 models x 3 grasps with reachability, per kernel.
+    Plan(super::plan::PlanBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -103,5 +105,6 @@ pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Can(args) => super::can::bench(args),
         BenchCommand::QualityMetric(args) => super::quality::bench_metric(args),
         BenchCommand::Ipc(args) => super::ipc::bench_ipc(args),
+        BenchCommand::Plan(args) => super::plan::bench(config, args),
     }
 }

@@ -12,6 +12,7 @@ mod fri;
 pub mod ipc;
 mod objects;
 mod output;
+mod plan;
 mod quality;
 mod robot;
 mod trial;
@@ -63,6 +64,8 @@ pub enum Command {
     Quality(quality::QualityArgs),
     /// Execute one planned grasp (pre-grasp, approach, close, lift, hold) and report.
     Execute(execute::ExecuteArgs),
+    /// Plan a grasp: maximise eq. 2 over every model's task grasps, reachable, with the best-single baseline.
+    Plan(plan::PlanArgs),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -102,6 +105,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Camera(which) => camera::run(&cli.config, which),
         Command::Quality(args) => quality::run(args),
         Command::Execute(args) => execute::run(&cli.config, args),
+        Command::Plan(args) => plan::run(&cli.config, args),
         Command::Bench(which) => bench::run(&cli.config, which),
         Command::IpcPeer(args) => ipc::run_peer(args),
     }

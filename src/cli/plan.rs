@@ -1,0 +1,433 @@
+//! `cell plan` and `cell bench plan`.
+
+use super::bench::{median, percentile};
+use super::emit;
+use crate::config::CellConfig;
+use crate::geometry::{params_from_pose, Pose};
+use crate::plan::input::{read_fits, read_grasps};
+use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
+use crate::plan::{plan, FitWeight, Kernel, PlanOptions, PlanOutcome, PlannedGrasp, Reachability};
+use crate::robot::Robot;
+use anyhow::Context;
+use clap::{Args, ValueEnum};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+/// The density family on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum KernelName {
+    /// Laplace (5c): fat tails; the paper's best.
+    Laplace,
+    /// Gaussian (5a) over the grasps' own Sigma.
+    Gaussian,
+    /// Regularised Gaussian (5b): Sigma + s.
+    GaussianR,
+}
+
+/// The fit weight on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FitWeightName {
+    /// (4a) exp(-lambda_eps eps).
+    Eps,
+    /// (4b) exp(-lambda_eps (eps + sigma)): robust for partial clouds.
+    EpsSigma,
+}
+
+/// The kernel options shared by `cell plan` and the evaluations that call the planner.
+#[derive(Debug, Clone, Args)]
+pub struct KernelArgs {
+    /// Task-compatibility density.
+    #[arg(long, value_enum, default_value_t = KernelName::Laplace)]
+    pub kernel: KernelName,
+    /// The paper's scalar s (Gaussian-R, mm^2 and rad^2 mixed) or b (Laplace, mm and rad
+    /// mixed): 50 in its simulation, 700 on its robot. Sets both SI scales: translation
+    /// s*1e-6 m^2 or b*1e-3 m, rotation s rad^2 or b rad.
+    #[arg(long)]
+    pub paper_scale: Option<f64>,
+    /// Gaussian-R: regulariser on translation (m^2) [default 5e-5].
+    #[arg(long)]
+    pub s_translation_m2: Option<f64>,
+    /// Gaussian-R: regulariser on rotation (rad^2) [default 0.05].
+    #[arg(long)]
+    pub s_rotation_rad2: Option<f64>,
+    /// Laplace: scale of translation (m) [default 0.05].
+    #[arg(long)]
+    pub b_translation_m: Option<f64>,
+    /// Laplace: scale of rotation (rad) [default 0.5].
+    #[arg(long)]
+    pub b_rotation_rad: Option<f64>,
+}
+
+impl KernelArgs {
+    /// The kernel these options describe (scales from `--paper-scale`, then the
+    /// individual flags, then the defaults).
+    pub fn kernel(&self) -> Kernel {
+        match self.kernel {
+            KernelName::Gaussian => Kernel::Gaussian,
+            KernelName::GaussianR => {
+                let Kernel::GaussianR {
+                    s_translation_m2,
+                    s_rotation_rad2,
+                } = self
+                    .paper_scale
+                    .map_or(Kernel::GAUSSIAN_R_DEFAULT, Kernel::paper_gaussian_r)
+                else {
+                    unreachable!("a Gaussian-R kernel")
+                };
+                Kernel::GaussianR {
+                    s_translation_m2: self.s_translation_m2.unwrap_or(s_translation_m2),
+                    s_rotation_rad2: self.s_rotation_rad2.unwrap_or(s_rotation_rad2),
+                }
+            }
+            KernelName::Laplace => {
+                let Kernel::Laplace {
+                    b_translation_m,
+                    b_rotation_rad,
+                } = self
+                    .paper_scale
+                    .map_or(Kernel::LAPLACE_DEFAULT, Kernel::paper_laplace)
+                else {
+                    unreachable!("a Laplace kernel")
+                };
+                Kernel::Laplace {
+                    b_translation_m: self.b_translation_m.unwrap_or(b_translation_m),
+                    b_rotation_rad: self.b_rotation_rad.unwrap_or(b_rotation_rad),
+                }
+            }
+        }
+    }
+}
+
+/// Options of `cell plan`.
+#[derive(Debug, Args)]
+pub struct PlanArgs {
+    /// Model fits (JSON: {"fits": [{"name", "base_from_model", "eps_m2", "sigma_m2"}]}).
+    #[arg(long)]
+    pub fits: PathBuf,
+    /// Example grasps (JSON: {"grasps": [{"model", "task", "model_from_palm",
+    /// "spread_rad", "q", "sigma_m_rad"}]}); `model` names a fit.
+    #[arg(long)]
+    pub grasps: PathBuf,
+    /// The task (e.g. top, side, handle, use).
+    #[arg(long)]
+    pub task: String,
+    /// Density options.
+    #[command(flatten)]
+    pub kernel: KernelArgs,
+    /// Fit weight.
+    #[arg(long, value_enum, default_value_t = FitWeightName::EpsSigma)]
+    pub fit_weight: FitWeightName,
+    /// lambda_psi of the stability weight psi(q) = 1 - exp(-lambda_psi q).
+    #[arg(long, default_value_t = 10.0)]
+    pub lambda_psi: f64,
+    /// lambda_eps of the fit weight (1/m^2).
+    #[arg(long, default_value_t = 1e4)]
+    pub lambda_eps_per_m2: f64,
+    /// Skip reachability (the paper's simulation setting: only the table bound).
+    #[arg(long)]
+    pub no_reach: bool,
+    /// Run the starts one after another instead of in parallel.
+    #[arg(long)]
+    pub serial: bool,
+    /// Print JSON: {"fits", "grasps", "options", "plan", "best_single"}.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Serialize)]
+struct PlanReport<'a> {
+    fits: &'a Path,
+    grasps: &'a Path,
+    options: PlanOptions,
+    #[serde(flatten)]
+    outcome: PlanOutcome,
+}
+
+fn pose_text(pose: &Pose) -> String {
+    let p = params_from_pose(pose);
+    format!(
+        "xyz = [{:.4}, {:.4}, {:.4}] m  rpy = [{:.4}, {:.4}, {:.4}] rad",
+        p[0], p[1], p[2], p[3], p[4], p[5]
+    )
+}
+
+fn grasp_text(name: &str, g: &PlannedGrasp) -> String {
+    let reach = match (&g.unreachable, g.reachable) {
+        (_, true) => "reachable".to_string(),
+        (Some(why), false) => why.to_string(),
+        (None, false) => "reachability not checked".to_string(),
+    };
+    format!(
+        "{name:<12} {}  spread {:.3} rad\n{:<12} objective {:.4e} (ln {:.4}); {reach}\n",
+        pose_text(&g.pose),
+        g.spread_rad,
+        "",
+        g.objective,
+        g.log_objective
+    )
+}
+
+/// Runs `cell plan`.
+pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
+    let cell = CellConfig::load(config)?;
+    let fits = read_fits(&args.fits)?;
+    let grasps = read_grasps(&args.grasps, &fits)?;
+    let mut options = PlanOptions::new(args.kernel.kernel(), &cell);
+    options.weights.lambda_psi = args.lambda_psi;
+    options.weights.lambda_eps_per_m2 = args.lambda_eps_per_m2;
+    options.weights.fit = match args.fit_weight {
+        FitWeightName::Eps => FitWeight::Eps,
+        FitWeightName::EpsSigma => FitWeight::EpsSigma,
+    };
+    options.parallel = !args.serial;
+    let robot = if args.no_reach {
+        None
+    } else {
+        Some(Robot::load(&cell)?)
+    };
+    let outcome = plan(
+        &fits,
+        &grasps,
+        &args.task,
+        &options,
+        robot.as_ref().map(|r| r as &dyn Reachability),
+    )
+    .with_context(|| format!("planning task {:?}", args.task))?;
+    let report = PlanReport {
+        fits: &args.fits,
+        grasps: &args.grasps,
+        options,
+        outcome,
+    };
+    emit(args.json, &report, |r| {
+        let plan = &r.outcome.plan;
+        let mut text = format!(
+            "task {} with {} over {} grasps ({} evaluations, {} reach checks)\n",
+            plan.task,
+            plan.kernel.name(),
+            plan.starts,
+            plan.evaluations,
+            plan.reach_checks
+        );
+        text += &grasp_text("planned", &plan.grasp);
+        if let Some(u) = &plan.unconstrained_optimum {
+            text += &format!(
+                "{:<12} {}\n{:<12} objective {:.4e} (ln {:.4}); {}\n",
+                "unconstrained",
+                pose_text(&u.pose),
+                "",
+                u.objective,
+                u.log_objective,
+                u.unreachable
+            );
+        }
+        text += &format!(
+            "best single  model {} grasp {}\n",
+            r.outcome.best_single.model_name, r.outcome.best_single.grasp_index
+        );
+        text += &grasp_text("", &r.outcome.best_single.grasp);
+        text
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Options of `cell bench plan`.
+#[derive(Debug, Args)]
+pub struct PlanBenchArgs {
+    /// Models in each synthetic problem.
+    #[arg(long, default_value_t = 7)]
+    pub models: usize,
+    /// Grasps of the task per model.
+    #[arg(long, default_value_t = 3)]
+    pub grasps_per_model: usize,
+    /// Problems (each with its own seed) per kernel; medians over them.
+    #[arg(long, default_value_t = 20)]
+    pub repeats: usize,
+    /// Problems with the object out of reach (the constrained path).
+    #[arg(long, default_value_t = 5)]
+    pub far_repeats: usize,
+    /// Seed of the first problem (problem r uses seed + r).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print JSON (always JSON; accepted for uniformity).
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Serialize)]
+struct KernelBench {
+    kernel: &'static str,
+    /// Planning with reachability, starts in parallel.
+    median_ms: f64,
+    p90_ms: f64,
+    /// The same, starts one after another.
+    serial_median_ms: f64,
+    /// CPU time of the serial runs (what they cost on an idle core).
+    serial_median_cpu_ms: f64,
+    /// Without reachability (the paper's simulation setting), in parallel.
+    no_reach_median_ms: f64,
+    /// CPU time per objective evaluation, from the serial runs without reachability.
+    median_us_per_evaluation: f64,
+    median_evaluations: f64,
+    median_reach_checks: f64,
+    reachable_rate: f64,
+    unconstrained_optimum_unreachable_rate: f64,
+    best_single_reachable_rate: f64,
+}
+
+#[derive(Serialize)]
+struct PlanBench {
+    models: usize,
+    grasps_per_model: usize,
+    starts: usize,
+    repeats: usize,
+    seed: u64,
+    object_xy_m: [f64; 2],
+    threads: usize,
+    kernels: Vec<KernelBench>,
+    far_object_xy_m: [f64; 2],
+    far_repeats: usize,
+    /// Laplace with the object at the far edge of the table: the unconstrained optimum
+    /// is out of reach and the constrained search runs.
+    far_median_ms: f64,
+    /// CPU time of those runs (the constrained search is serial).
+    far_median_cpu_ms: f64,
+    far_reachable_rate: f64,
+    far_unconstrained_unreachable_rate: f64,
+}
+
+/// CPU time of the calling thread (ms): a serial run's cost whatever else the machine
+/// is doing.
+fn thread_cpu_ms() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; the clock id is a Linux constant.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    assert_eq!(
+        rc, 0,
+        "clock_gettime(CLOCK_THREAD_CPUTIME_ID) cannot fail on Linux"
+    );
+    ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6
+}
+
+fn time_ms(f: impl FnOnce() -> PlanOutcome) -> (f64, PlanOutcome) {
+    let start = Instant::now();
+    let out = f();
+    (start.elapsed().as_secs_f64() * 1e3, out)
+}
+
+fn rate(flags: &[bool]) -> f64 {
+    flags.iter().filter(|&&b| b).count() as f64 / flags.len().max(1) as f64
+}
+
+/// Runs `cell bench plan`: synthetic problems of `models` x `grasps_per_model` top
+/// grasps with the object at (0.6, 0) on the table, planned with each kernel, with the
+/// robot's reachability (in parallel and serially) and without; then the far object.
+pub fn bench(config: &Path, args: PlanBenchArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(
+        args.models > 0 && args.grasps_per_model > 0 && args.repeats > 0,
+        "--models, --grasps-per-model and --repeats must be > 0"
+    );
+    let cell = CellConfig::load(config)?;
+    let robot = Robot::load(&cell)?;
+    let reach: Option<&dyn Reachability> = Some(&robot);
+    let spec = |r: usize, object_xy_m: [f64; 2]| SyntheticSpec {
+        models: args.models,
+        grasps_per_model: args.grasps_per_model,
+        object_xy_m,
+        seed: args.seed + r as u64,
+    };
+    let near = [0.6, 0.0];
+    let far = [0.98, 0.1];
+    let mut kernels = Vec::new();
+    for kernel in [
+        Kernel::LAPLACE_DEFAULT,
+        Kernel::GAUSSIAN_R_DEFAULT,
+        Kernel::Gaussian,
+    ] {
+        let mut options = PlanOptions::new(kernel, &cell);
+        let (mut ms, mut serial_ms, mut no_reach_ms, mut us_per_eval) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let mut serial_cpu_ms = Vec::new();
+        let (mut evaluations, mut checks) = (Vec::new(), Vec::new());
+        let (mut reachable, mut unc_unreachable, mut single_reachable) =
+            (Vec::new(), Vec::new(), Vec::new());
+        for r in 0..args.repeats {
+            let (fits, grasps) = synthetic_problem(&spec(r, near));
+            let run = |options: &PlanOptions, reach| {
+                plan(&fits, &grasps, "top", options, reach).expect("synthetic problems are valid")
+            };
+            options.parallel = true;
+            let (t, out) = time_ms(|| run(&options, reach));
+            ms.push(t);
+            evaluations.push(out.plan.evaluations as f64);
+            checks.push(out.plan.reach_checks as f64);
+            reachable.push(out.plan.grasp.reachable);
+            unc_unreachable.push(out.plan.unconstrained_optimum.is_some());
+            single_reachable.push(out.best_single.grasp.reachable);
+            options.parallel = false;
+            let cpu = thread_cpu_ms();
+            serial_ms.push(time_ms(|| run(&options, reach)).0);
+            serial_cpu_ms.push(thread_cpu_ms() - cpu);
+            let cpu = thread_cpu_ms();
+            let out = run(&options, None);
+            us_per_eval.push((thread_cpu_ms() - cpu) * 1e3 / out.plan.evaluations as f64);
+            options.parallel = true;
+            no_reach_ms.push(time_ms(|| run(&options, None)).0);
+        }
+        kernels.push(KernelBench {
+            kernel: kernel.name(),
+            median_ms: median(&mut ms),
+            p90_ms: percentile(&mut ms, 0.9),
+            serial_median_ms: median(&mut serial_ms),
+            serial_median_cpu_ms: median(&mut serial_cpu_ms),
+            no_reach_median_ms: median(&mut no_reach_ms),
+            median_us_per_evaluation: median(&mut us_per_eval),
+            median_evaluations: median(&mut evaluations),
+            median_reach_checks: median(&mut checks),
+            reachable_rate: rate(&reachable),
+            unconstrained_optimum_unreachable_rate: rate(&unc_unreachable),
+            best_single_reachable_rate: rate(&single_reachable),
+        });
+    }
+    let options = PlanOptions::new(Kernel::LAPLACE_DEFAULT, &cell);
+    let (mut far_ms, mut far_reachable, mut far_unc) = (Vec::new(), Vec::new(), Vec::new());
+    let mut far_cpu_ms = Vec::new();
+    for r in 0..args.far_repeats {
+        let (fits, grasps) = synthetic_problem(&spec(r, far));
+        let options = PlanOptions {
+            parallel: false,
+            ..options
+        };
+        let cpu = thread_cpu_ms();
+        let (t, out) = time_ms(|| {
+            plan(&fits, &grasps, "top", &options, reach).expect("synthetic problems are valid")
+        });
+        far_cpu_ms.push(thread_cpu_ms() - cpu);
+        far_ms.push(t);
+        far_reachable.push(out.plan.grasp.reachable);
+        far_unc.push(out.plan.unconstrained_optimum.is_some());
+    }
+    let out = PlanBench {
+        models: args.models,
+        grasps_per_model: args.grasps_per_model,
+        starts: args.models * args.grasps_per_model,
+        repeats: args.repeats,
+        seed: args.seed,
+        object_xy_m: near,
+        threads: rayon::current_num_threads(),
+        kernels,
+        far_object_xy_m: far,
+        far_repeats: args.far_repeats,
+        far_median_ms: median(&mut far_ms),
+        far_median_cpu_ms: median(&mut far_cpu_ms),
+        far_reachable_rate: rate(&far_reachable),
+        far_unconstrained_unreachable_rate: rate(&far_unc),
+    };
+    emit(true, &out, |_| String::new())?;
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,1190 @@
+//! The planner: multi-start Nelder–Mead over the palm pose, the table bound by a
+//! variable transform, reachability of the grasp and the pre-grasp, and the
+//! best-single baseline.
+//!
+//! **Search space.** The palm pose in the world, `[x, y, u, ax, ay, az]` with
+//! `z = z_min + u^2` (the paper's transformation of the bound `z >= z_min`; `z_min` is
+//! the table height plus the palm clearance). The optimiser minimises `-ln f` (eq. 2),
+//! which has the same argmax as `f` and stays finite far from every grasp.
+//!
+//! **Starts.** One run from every example grasp of the task mapped into the world,
+//! `T_i * theta_ik` (runs are independent; they go in parallel with `parallel`).
+//!
+//! **Reachability** is kept out of the inner loop, where it would cost a few hundred
+//! microseconds per evaluation:
+//! 1. optimise without it; take the best optimum and check the grasp and its
+//!    pre-grasp (the grasp backed off along the palm's -z by `pregrasp_offset_m`) with
+//!    the full check (all IK seeds, collisions). Reachable: done.
+//! 2. Otherwise record it as the unconstrained optimum and look for reachable points
+//!    (at most `feasibility_budget` full checks, until `constrained_starts` are found):
+//!    the reachability's own projection of the optimum and of its pre-grasp (for the
+//!    robot: where its best IK attempt puts the palm), the other optima and the starts (best objective first), probes from the
+//!    optimum along each parameter axis (1, 3, 9, 27 cm or 0.1, 0.3, 0.9, 2.7 rad,
+//!    nearest first), and the runs' intermediate best points; plus the last reachable
+//!    point on the segment from the best of those toward the unconstrained optimum
+//!    (bisection).
+//! 3. From the best `constrained_starts` of them, run Nelder–Mead on `-ln f` with
+//!    `+inf` at unreachable poses — a barrier that no reachable point can lose to —
+//!    restarted from its result while it still gains. In this loop reachability is
+//!    the quick check from nearby configurations ([`Reachability::reach_near`]),
+//!    conservative, so the result is reachable; it is confirmed by the full check.
+//!
+//! The hand is open with the spread of the **dominant grasp** — the example grasp
+//! whose term of eq. 2 is largest at the pose — at both the grasp and the pre-grasp.
+//!
+//! **Best single** (the baseline): the model with the largest fit weight `phi` that
+//! has a grasp of the task; of its grasps of the task the one of highest quality `q`
+//! (the first among equals), mapped into the world by that model's `T_i`.
+
+use super::nelder_mead::{nelder_mead, NelderMeadOptions, NelderMeadResult};
+use super::objective::Objective;
+use super::reach::Reachability;
+use super::{ExampleGrasp, Kernel, ModelFit, PlanError, Weights};
+use crate::config::CellConfig;
+use crate::geometry::{
+    params_from_pose, pose_error, pose_from_params, wrap_angle, Pose, PoseJson, PoseParams,
+};
+use crate::robot::ik::IkSolution;
+use crate::robot::kinematics::ArmJoints;
+use crate::robot::{HandPose, UnreachableReason};
+use nalgebra::Translation3;
+use rayon::prelude::*;
+use serde::{Serialize, Serializer};
+
+/// Everything the planner needs besides the fits and grasps.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PlanOptions {
+    /// Task-compatibility density.
+    pub kernel: Kernel,
+    /// Stability and fit weights.
+    pub weights: Weights,
+    /// Lowest palm height (m, world z): the table height plus the palm clearance.
+    pub z_min_m: f64,
+    /// The pre-grasp backs off from the grasp along the palm's -z by this (m).
+    pub pregrasp_offset_m: f64,
+    /// Stopping rules of each unconstrained Nelder–Mead run (`fminsearch` defaults).
+    #[serde(skip)]
+    pub nelder_mead: NelderMeadOptions,
+    /// Stopping rules of each constrained run (where every evaluation checks
+    /// reachability): 1 mm and 1e-3 rad, the scale of the IK's own tolerances, and
+    /// at most 400 evaluations.
+    #[serde(skip)]
+    pub constrained_nelder_mead: NelderMeadOptions,
+    /// Run the unconstrained starts in parallel (rayon).
+    pub parallel: bool,
+    /// Constrained runs when the unconstrained optimum is unreachable (plus one from
+    /// the bisection point).
+    pub constrained_starts: usize,
+    /// Most full reachability checks spent finding reachable starting points.
+    pub feasibility_budget: usize,
+}
+
+impl PlanOptions {
+    /// Options for `kernel` in the cell of `config` (table, clearance, pre-grasp
+    /// offset), with the default weights and stopping rules.
+    pub fn new(kernel: Kernel, config: &CellConfig) -> PlanOptions {
+        PlanOptions {
+            z_min_m: config.table.height_m + config.table.palm_clearance_m,
+            pregrasp_offset_m: config.robot.pregrasp_offset_m,
+            ..PlanOptions::with_kernel(kernel)
+        }
+    }
+
+    /// Options for `kernel` with a table at z = 0, the paper's 50 mm bound and a 0.1 m
+    /// pre-grasp offset.
+    pub fn with_kernel(kernel: Kernel) -> PlanOptions {
+        PlanOptions {
+            kernel,
+            weights: Weights::default(),
+            z_min_m: 0.05,
+            pregrasp_offset_m: 0.10,
+            nelder_mead: NelderMeadOptions::default(),
+            constrained_nelder_mead: NelderMeadOptions {
+                tol_x: 1e-3,
+                tol_fun: 1e-3,
+                max_iterations: None,
+                max_evaluations: Some(400),
+            },
+            parallel: true,
+            constrained_starts: 2,
+            feasibility_budget: 48,
+        }
+    }
+}
+
+/// Serialises a pose as [`PoseJson`].
+fn pose_json<S: Serializer>(pose: &Pose, s: S) -> Result<S::Ok, S::Error> {
+    PoseJson::from(pose).serialize(s)
+}
+
+/// Which of the two poses of a grasp could not be reached.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage {
+    /// The grasp pose.
+    Grasp,
+    /// The pre-grasp pose.
+    Pregrasp,
+}
+
+/// Why a grasp is infeasible.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Infeasible {
+    /// The pose that failed.
+    pub stage: Stage,
+    /// Why.
+    pub reason: UnreachableReason,
+}
+
+impl std::fmt::Display for Infeasible {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let stage = match self.stage {
+            Stage::Grasp => "grasp",
+            Stage::Pregrasp => "pre-grasp",
+        };
+        write!(f, "{stage} unreachable: {}", self.reason)
+    }
+}
+
+/// A grasp pose with its pre-grasp, hand spread, reachability and objective.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PlannedGrasp {
+    /// Palm pose in the world.
+    #[serde(serialize_with = "pose_json")]
+    pub pose: Pose,
+    /// Pre-grasp palm pose.
+    #[serde(serialize_with = "pose_json")]
+    pub pregrasp_pose: Pose,
+    /// Hand spread (rad).
+    pub spread_rad: f64,
+    /// Arm joints at the grasp, when reachable.
+    pub joints: Option<ArmJoints>,
+    /// Arm joints at the pre-grasp, when reachable.
+    pub pregrasp_joints: Option<ArmJoints>,
+    /// Both poses were checked and are reachable.
+    pub reachable: bool,
+    /// Why not, when checked and unreachable.
+    pub unreachable: Option<Infeasible>,
+    /// Eq. 2 at the pose, with normalising constants (1/(m^3 rad^3)).
+    pub objective: f64,
+    /// Its natural logarithm (finite where `objective` underflows).
+    pub log_objective: f64,
+}
+
+/// The best unconstrained optimum, reported when it was unreachable.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct UnconstrainedOptimum {
+    /// Palm pose.
+    #[serde(serialize_with = "pose_json")]
+    pub pose: Pose,
+    /// Eq. 2 there.
+    pub objective: f64,
+    /// Its logarithm.
+    pub log_objective: f64,
+    /// Why it cannot be used.
+    pub unreachable: Infeasible,
+}
+
+/// The planned grasp.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GraspPlan {
+    /// The task.
+    pub task: String,
+    /// The density used.
+    pub kernel: Kernel,
+    /// The grasp (reachable unless no reachable point was found).
+    #[serde(flatten)]
+    pub grasp: PlannedGrasp,
+    /// Index (into the grasps) of the dominant grasp, whose spread is used.
+    pub dominant_grasp: usize,
+    /// Each model's part of the objective at the pose (indexed like the fits; sums to
+    /// `objective`).
+    pub per_model_contribution: Vec<f64>,
+    /// Whether reachability was checked (false in the paper's simulation setting).
+    pub reachability_checked: bool,
+    /// The best unconstrained optimum, when it was unreachable and the grasp above is
+    /// the best reachable one found instead.
+    pub unconstrained_optimum: Option<UnconstrainedOptimum>,
+    /// Unconstrained runs (one per grasp of the task).
+    pub starts: usize,
+    /// Constrained runs.
+    pub constrained_runs: usize,
+    /// Objective evaluations over all runs.
+    pub evaluations: usize,
+    /// Reachability checks (grasp and pre-grasp each count).
+    pub reach_checks: usize,
+}
+
+/// The best-single baseline.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BestSingle {
+    /// Index of the best-fitting model with a grasp of the task.
+    pub model: usize,
+    /// Its name.
+    pub model_name: String,
+    /// Index of its grasp used.
+    pub grasp_index: usize,
+    /// The grasp mapped into the world, its reachability and objective.
+    #[serde(flatten)]
+    pub grasp: PlannedGrasp,
+}
+
+/// The planner's answer: the plan and the baseline.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PlanOutcome {
+    /// The planned grasp.
+    pub plan: GraspPlan,
+    /// The best-single baseline.
+    pub best_single: BestSingle,
+}
+
+/// Search variables `[x, y, u, ax, ay, az]` of world parameters (`u = sqrt(z - z_min)`,
+/// 0 below the bound).
+pub fn search_from_params(p: &PoseParams, z_min_m: f64) -> [f64; 6] {
+    [
+        p[0],
+        p[1],
+        (p[2] - z_min_m).max(0.0).sqrt(),
+        p[3],
+        p[4],
+        p[5],
+    ]
+}
+
+/// World parameters of search variables (`z = z_min + u^2`).
+pub fn params_from_search(x: &[f64], z_min_m: f64) -> PoseParams {
+    [x[0], x[1], z_min_m + x[2] * x[2], x[3], x[4], x[5]]
+}
+
+/// The pre-grasp of a grasp: backed off along the palm's -z by `offset_m`.
+pub fn pregrasp_pose(grasp: &Pose, offset_m: f64) -> Pose {
+    grasp * Translation3::new(0.0, 0.0, -offset_m)
+}
+
+fn open_hand(spread_rad: f64) -> HandPose {
+    HandPose {
+        spread_rad,
+        flex_rad: [0.0; 3],
+    }
+}
+
+/// IK solutions of a feasible grasp and its pre-grasp.
+#[derive(Debug, Clone, Copy)]
+struct Feasible {
+    grasp: IkSolution,
+    pregrasp: IkSolution,
+}
+
+/// Checks grasp and pre-grasp: the full check (`quick = false`; `seeds` first) or the
+/// quick one from the nearby configurations `seeds`. The pre-grasp is tried from the
+/// grasp's solution first, then from `pre_seeds`.
+struct Checker<'a> {
+    reach: &'a dyn Reachability,
+    offset_m: f64,
+    checks: usize,
+}
+
+impl Checker<'_> {
+    fn check(
+        &mut self,
+        pose: &Pose,
+        spread_rad: f64,
+        seeds: &[ArmJoints],
+        pre_seeds: &[ArmJoints],
+        quick: bool,
+    ) -> Result<Feasible, Infeasible> {
+        let hand = open_hand(spread_rad);
+        let fail = |stage| {
+            move |u: crate::robot::Unreachable| Infeasible {
+                stage,
+                reason: u.reason,
+            }
+        };
+        let reach = |palm: &Pose, seeds: &[ArmJoints]| {
+            if quick {
+                self.reach.reach_near(palm, &hand, seeds)
+            } else {
+                self.reach.reach(palm, &hand, seeds)
+            }
+        };
+        self.checks += 1;
+        let grasp = reach(pose, seeds).map_err(fail(Stage::Grasp))?;
+        self.checks += 1;
+        let pre = pregrasp_pose(pose, self.offset_m);
+        let pre_seeds: Vec<ArmJoints> = std::iter::once(grasp.joints)
+            .chain(pre_seeds.iter().copied())
+            .collect();
+        let pregrasp = reach(&pre, &pre_seeds).map_err(fail(Stage::Pregrasp))?;
+        Ok(Feasible { grasp, pregrasp })
+    }
+
+    /// The quick check with repair: a reachable grasp at or near `pose` (see
+    /// [`Reachability::repair_near`]) whose pre-grasp passes the quick check.
+    fn repair(
+        &mut self,
+        pose: &Pose,
+        spread_rad: f64,
+        seeds: &[ArmJoints],
+        pre_seeds: &[ArmJoints],
+    ) -> Option<(Pose, Feasible)> {
+        let hand = open_hand(spread_rad);
+        self.checks += 1;
+        let (reached, grasp) = self.reach.repair_near(pose, &hand, seeds)?;
+        self.checks += 1;
+        let pre = pregrasp_pose(&reached, self.offset_m);
+        let pre_seeds: Vec<ArmJoints> = std::iter::once(grasp.joints)
+            .chain(pre_seeds.iter().copied())
+            .collect();
+        let pregrasp = self.reach.reach_near(&pre, &hand, &pre_seeds).ok()?;
+        Some((reached, Feasible { grasp, pregrasp }))
+    }
+}
+
+/// One unconstrained run and the points where its best value improved.
+struct Run {
+    result: NelderMeadResult,
+    trail: Vec<(f64, [f64; 6])>,
+}
+
+/// A point of the search space with its `-ln f`.
+#[derive(Debug, Clone, Copy)]
+struct Point {
+    g: f64,
+    x: [f64; 6],
+}
+
+struct Problem<'a> {
+    objective: Objective,
+    grasps: &'a [ExampleGrasp],
+    options: &'a PlanOptions,
+}
+
+impl Problem<'_> {
+    fn params(&self, x: &[f64]) -> PoseParams {
+        params_from_search(x, self.options.z_min_m)
+    }
+
+    fn g(&self, x: &[f64]) -> f64 {
+        -self.objective.log_value(&self.params(x))
+    }
+
+    fn spread_at(&self, p: &PoseParams) -> f64 {
+        self.grasps[self.objective.dominant_grasp(p)].spread_rad
+    }
+
+    fn run(&self, x0: &[f64; 6]) -> Run {
+        let mut best = f64::INFINITY;
+        let mut trail = Vec::new();
+        let result = nelder_mead(
+            |x| {
+                let g = self.g(x);
+                if g < best {
+                    best = g;
+                    trail.push((g, [x[0], x[1], x[2], x[3], x[4], x[5]]));
+                }
+                g
+            },
+            x0,
+            &self.options.nelder_mead,
+        );
+        Run { result, trail }
+    }
+
+    /// Constrained runs from a reachable point. Each evaluation repairs the candidate
+    /// into a reachable pose near it (from the last reachable configuration, the best
+    /// one's and the start's; [`Checker::repair`]) and scores the repaired pose plus
+    /// the distance to it (1 per cm and per 0.1 rad), so that the search slides along
+    /// the boundary instead of stalling on it; `+inf` where nothing reachable is found
+    /// (a barrier, the whole rule when the reachability cannot repair). Restarted from
+    /// its result (a fresh simplex) while that gains more than `tol_fun`, at most
+    /// `CONSTRAINED_RESTARTS` times. Returns the best reachable point seen, its IK
+    /// solutions and the evaluations.
+    fn constrained_run(
+        &self,
+        checker: &mut Checker,
+        start: Point,
+        feasible: Feasible,
+    ) -> (Point, Feasible, usize) {
+        let mut best = (start, feasible);
+        let mut last = feasible;
+        let mut evaluations = 0;
+        for _ in 0..=CONSTRAINED_RESTARTS {
+            let from = best.0;
+            let result = nelder_mead(
+                |x| {
+                    let p = self.params(x);
+                    let pose = pose_from_params(&p);
+                    let seeds = [last, best.1, feasible].map(|f| f.grasp.joints);
+                    let pre_seeds = [last, best.1, feasible].map(|f| f.pregrasp.joints);
+                    let Some((reached, f)) =
+                        checker.repair(&pose, self.spread_at(&p), &seeds, &pre_seeds)
+                    else {
+                        return f64::INFINITY;
+                    };
+                    let q = params_from_pose(&reached);
+                    if q[2] < self.options.z_min_m {
+                        return f64::INFINITY;
+                    }
+                    let g = -self.objective.log_value(&q);
+                    if !g.is_finite() {
+                        return f64::INFINITY;
+                    }
+                    last = f;
+                    if g < best.0.g {
+                        let x = search_from_params(&q, self.options.z_min_m);
+                        best = (Point { g, x }, f);
+                    }
+                    let (dp, dr) = pose_error(&pose, &reached);
+                    g + dp / 0.01 + dr / 0.1
+                },
+                &from.x,
+                &self.options.constrained_nelder_mead,
+            );
+            evaluations += result.evaluations;
+            if from.g - best.0.g <= self.options.constrained_nelder_mead.tol_fun {
+                break;
+            }
+        }
+        (best.0, best.1, evaluations)
+    }
+
+    fn planned(&self, x: &[f64], feasible: Result<Option<Feasible>, Infeasible>) -> PlannedGrasp {
+        let p = self.params(x);
+        self.planned_at(pose_from_params(&p), self.spread_at(&p), feasible)
+    }
+
+    fn planned_at(
+        &self,
+        pose: Pose,
+        spread_rad: f64,
+        feasible: Result<Option<Feasible>, Infeasible>,
+    ) -> PlannedGrasp {
+        let log_objective = self.objective.log_value_at(&pose);
+        let (joints, pregrasp_joints, reachable, unreachable) = match feasible {
+            Ok(Some(f)) => (Some(f.grasp.joints), Some(f.pregrasp.joints), true, None),
+            Ok(None) => (None, None, false, None),
+            Err(e) => (None, None, false, Some(e)),
+        };
+        PlannedGrasp {
+            pose,
+            pregrasp_pose: pregrasp_pose(&pose, self.options.pregrasp_offset_m),
+            spread_rad,
+            joints,
+            pregrasp_joints,
+            reachable,
+            unreachable,
+            objective: log_objective.exp(),
+            log_objective,
+        }
+    }
+}
+
+/// Plans the grasp for `task` over `fits` and `grasps`, and the best-single baseline.
+///
+/// With `reach = None` only the table bound constrains the grasp (the paper's
+/// simulation setting) and nothing is marked reachable.
+pub fn plan(
+    fits: &[ModelFit],
+    grasps: &[ExampleGrasp],
+    task: &str,
+    options: &PlanOptions,
+    reach: Option<&dyn Reachability>,
+) -> Result<PlanOutcome, PlanError> {
+    if !options.z_min_m.is_finite() {
+        return Err(PlanError::BadValue {
+            what: "plan z_min_m".into(),
+            value: options.z_min_m,
+            problem: "must be finite",
+        });
+    }
+    super::objective::check_value("plan pregrasp_offset_m", options.pregrasp_offset_m, false)?;
+    let objective = Objective::new(fits, grasps, task, &options.kernel, &options.weights)?;
+    let problem = Problem {
+        objective,
+        grasps,
+        options,
+    };
+    let z_min = options.z_min_m;
+    let start_params: Vec<PoseParams> = problem
+        .objective
+        .grasps()
+        .map(|g| {
+            let grasp = &grasps[g];
+            let world =
+                fits[grasp.model].base_from_model * pose_from_params(&grasp.model_from_palm);
+            params_from_pose(&world)
+        })
+        .collect();
+    let starts: Vec<[f64; 6]> = start_params
+        .iter()
+        .map(|p| search_from_params(p, z_min))
+        .collect();
+    let runs: Vec<Run> = if options.parallel {
+        starts.par_iter().map(|x0| problem.run(x0)).collect()
+    } else {
+        starts.iter().map(|x0| problem.run(x0)).collect()
+    };
+    let mut evaluations: usize = runs.iter().map(|r| r.result.evaluations).sum();
+    // Optima, best first (the earlier start among equals).
+    let mut optima: Vec<Point> = runs
+        .iter()
+        .map(|r| Point {
+            g: r.result.fx,
+            x: std::array::from_fn(|i| r.result.x[i]),
+        })
+        .collect();
+    optima.sort_by(|a, b| a.g.total_cmp(&b.g));
+    let best = optima[0];
+
+    let mut checker = reach.map(|reach| Checker {
+        reach,
+        offset_m: options.pregrasp_offset_m,
+        checks: 0,
+    });
+    let mut unconstrained_optimum = None;
+    let mut constrained_runs = 0;
+    let grasp = match checker.as_mut() {
+        None => problem.planned(&best.x, Ok(None)),
+        Some(checker) => {
+            let p = problem.params(&best.x);
+            let pose = pose_from_params(&p);
+            match checker.check(&pose, problem.spread_at(&p), &[], &[], false) {
+                Ok(f) => problem.planned(&best.x, Ok(Some(f))),
+                Err(why) => {
+                    let top = problem.planned(&best.x, Err(why.clone()));
+                    unconstrained_optimum = Some(UnconstrainedOptimum {
+                        pose,
+                        objective: top.objective,
+                        log_objective: top.log_objective,
+                        unreachable: why,
+                    });
+                    let found = best_reachable(
+                        &problem,
+                        checker,
+                        &best,
+                        &optima[1..],
+                        &starts,
+                        &runs,
+                        &mut evaluations,
+                        &mut constrained_runs,
+                    );
+                    found.unwrap_or(top)
+                }
+            }
+        }
+    };
+    let p = params_from_pose(&grasp.pose);
+    let breakdown = problem.objective.breakdown(&p);
+    let plan = GraspPlan {
+        task: task.to_string(),
+        kernel: options.kernel,
+        dominant_grasp: breakdown.dominant_grasp(),
+        per_model_contribution: breakdown.per_model_log.iter().map(|l| l.exp()).collect(),
+        grasp,
+        reachability_checked: reach.is_some(),
+        unconstrained_optimum,
+        starts: starts.len(),
+        constrained_runs,
+        evaluations,
+        reach_checks: 0,
+    };
+    let best_single = best_single(fits, grasps, &problem, checker.as_mut());
+    let reach_checks = checker.map_or(0, |c| c.checks);
+    Ok(PlanOutcome {
+        plan: GraspPlan {
+            reach_checks,
+            ..plan
+        },
+        best_single,
+    })
+}
+
+/// Restarts of a constrained run from its own result.
+const CONSTRAINED_RESTARTS: usize = 2;
+
+/// Axis probes around an unreachable optimum: multiples of 1 cm and 0.1 rad.
+const PROBE_SCALES: [f64; 4] = [1.0, 3.0, 9.0, 27.0];
+
+/// Steps 2 and 3 of the module doc: the best reachable grasp found, if any.
+#[allow(clippy::too_many_arguments)]
+fn best_reachable(
+    problem: &Problem,
+    checker: &mut Checker,
+    optimum: &Point,
+    other_optima: &[Point],
+    starts: &[[f64; 6]],
+    runs: &[Run],
+    evaluations: &mut usize,
+    constrained_runs: &mut usize,
+) -> Option<PlannedGrasp> {
+    let options = problem.options;
+    // Candidate starting points: other optima, then starts (each best first), then
+    // probes along each parameter axis from the optimum (nearest first), then the
+    // runs' intermediate best points (best first).
+    // First of all, the implementation's own projections of the optimum (its grasp,
+    // and its pre-grasp moved forward by the offset).
+    let centre = problem.params(&optimum.x);
+    let pose = pose_from_params(&centre);
+    let hand = open_hand(problem.spread_at(&centre));
+    let offset = Translation3::new(0.0, 0.0, options.pregrasp_offset_m);
+    let mut projected = Vec::new();
+    for (target, back) in [
+        (pose, Translation3::identity()),
+        (pregrasp_pose(&pose, options.pregrasp_offset_m), offset),
+    ] {
+        checker.checks += 1;
+        if let Some((reached, _)) = checker.reach.nearest_reachable(&target, &hand) {
+            let x = search_from_params(&params_from_pose(&(reached * back)), options.z_min_m);
+            projected.push(Point {
+                g: problem.g(&x),
+                x,
+            });
+        }
+    }
+    let mut groups: Vec<Vec<Point>> = vec![projected, other_optima.to_vec()];
+    let mut from_starts: Vec<Point> = starts
+        .iter()
+        .map(|x| Point {
+            g: problem.g(x),
+            x: *x,
+        })
+        .collect();
+    from_starts.sort_by(|a, b| a.g.total_cmp(&b.g));
+    groups.push(from_starts);
+    let mut probes = Vec::new();
+    for scale in PROBE_SCALES {
+        for d in 0..6 {
+            for sign in [-1.0, 1.0] {
+                let mut p = centre;
+                p[d] += sign * scale * if d < 3 { 0.01 } else { 0.1 };
+                let x = search_from_params(&p, options.z_min_m);
+                probes.push(Point {
+                    g: problem.g(&x),
+                    x,
+                });
+            }
+        }
+    }
+    groups.push(probes);
+    let mut trail: Vec<Point> = runs
+        .iter()
+        .flat_map(|r| r.trail.iter().map(|&(g, x)| Point { g, x }))
+        .collect();
+    trail.sort_by(|a, b| a.g.total_cmp(&b.g));
+    groups.push(trail);
+    let mut checked: Vec<Pose> = vec![pose_from_params(&problem.params(&optimum.x))];
+    let mut feasible: Vec<(Point, Feasible)> = Vec::new();
+    let mut budget = options.feasibility_budget;
+    'search: for group in groups {
+        for point in group {
+            if feasible.len() >= options.constrained_starts || budget == 0 {
+                break 'search;
+            }
+            let p = problem.params(&point.x);
+            let pose = pose_from_params(&p);
+            // Skip near-duplicates of points already checked.
+            if checked.iter().any(|c| {
+                let (dp, dr) = pose_error(c, &pose);
+                dp < 2e-3 && dr < 2e-3
+            }) {
+                continue;
+            }
+            checked.push(pose);
+            budget -= 1;
+            if let Ok(f) = checker.check(&pose, problem.spread_at(&p), &[], &[], false) {
+                feasible.push((point, f));
+            }
+        }
+    }
+    feasible.sort_by(|a, b| a.0.g.total_cmp(&b.0.g));
+    let (first, first_f) = *feasible.first()?;
+    // The last reachable point on the way from the best reachable one to the optimum
+    // (angles unwrapped toward the reachable point).
+    let mut target = optimum.x;
+    for (t, f) in target.iter_mut().zip(first.x.iter()).take(6).skip(3) {
+        *t = f + wrap_angle(*t - f);
+    }
+    let (mut lo, mut hi) = (0.0, 1.0);
+    let mut lo_f = first_f;
+    for _ in 0..10 {
+        let t = 0.5 * (lo + hi);
+        let x: [f64; 6] = std::array::from_fn(|i| first.x[i] + t * (target[i] - first.x[i]));
+        let p = problem.params(&x);
+        match checker.check(
+            &pose_from_params(&p),
+            problem.spread_at(&p),
+            &[lo_f.grasp.joints, first_f.grasp.joints],
+            &[lo_f.pregrasp.joints, first_f.pregrasp.joints],
+            true,
+        ) {
+            Ok(f) => {
+                lo = t;
+                lo_f = f;
+            }
+            Err(_) => hi = t,
+        }
+    }
+    if lo > 0.0 {
+        let x: [f64; 6] = std::array::from_fn(|i| first.x[i] + lo * (target[i] - first.x[i]));
+        feasible.push((
+            Point {
+                g: problem.g(&x),
+                x,
+            },
+            lo_f,
+        ));
+    }
+    let mut best: Option<(Point, Feasible)> = None;
+    for &(point, f) in &feasible {
+        let (found, found_f, used) = problem.constrained_run(checker, point, f);
+        *constrained_runs += 1;
+        *evaluations += used;
+        if best.as_ref().is_none_or(|b| found.g < b.0.g) {
+            best = Some((found, found_f));
+        }
+    }
+    let (Point { x, .. }, f) = best?;
+    // Confirm with the full check, seeded with the solution found.
+    let p = problem.params(&x);
+    let confirmed = checker.check(
+        &pose_from_params(&p),
+        problem.spread_at(&p),
+        &[f.grasp.joints],
+        &[f.pregrasp.joints],
+        false,
+    );
+    Some(problem.planned(&x, confirmed.map(Some)))
+}
+
+/// The best-single baseline (see the module doc).
+fn best_single(
+    fits: &[ModelFit],
+    grasps: &[ExampleGrasp],
+    problem: &Problem,
+    checker: Option<&mut Checker>,
+) -> BestSingle {
+    let weights = &problem.options.weights;
+    // The objective holds at least one grasp of the task.
+    let mut best: Option<(f64, f64, usize)> = None; // (ln phi, q, grasp)
+    for g in problem.objective.grasps() {
+        let grasp = &grasps[g];
+        let fit = &fits[grasp.model];
+        let key = (weights.log_phi(fit.eps_m2, fit.sigma_m2), grasp.q);
+        let better = match best {
+            None => true,
+            Some((phi, q, b)) => {
+                key.0 > phi || (key.0 == phi && (key.1 > q || (key.1 == q && g < b)))
+            }
+        };
+        if better {
+            best = Some((key.0, key.1, g));
+        }
+    }
+    let g = best.map(|b| b.2).unwrap_or(0);
+    let grasp = &grasps[g];
+    let pose = fits[grasp.model].base_from_model * pose_from_params(&grasp.model_from_palm);
+    let feasible = match checker {
+        None => Ok(None),
+        Some(c) => c.check(&pose, grasp.spread_rad, &[], &[], false).map(Some),
+    };
+    BestSingle {
+        model: grasp.model,
+        model_name: fits[grasp.model].name.clone(),
+        grasp_index: g,
+        grasp: problem.planned_at(pose, grasp.spread_rad, feasible),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::pose_from_params;
+    use crate::plan::test_support::grasp;
+    use crate::robot::Unreachable;
+    use std::f64::consts::PI;
+
+    fn fit(name: &str, p: PoseParams, eps_m2: f64) -> ModelFit {
+        ModelFit {
+            name: name.into(),
+            base_from_model: pose_from_params(&p),
+            eps_m2,
+            sigma_m2: 0.2 * eps_m2,
+        }
+    }
+
+    /// Two mugs, two top grasps each (roll near pi: on the wrap boundary).
+    fn grid_database() -> (Vec<ModelFit>, Vec<ExampleGrasp>) {
+        let fits = vec![
+            fit("a", [0.6, 0.0, 0.0, 0.0, 0.0, 0.3], 1e-5),
+            fit("b", [0.61, 0.01, 0.0, 0.0, 0.0, -0.2], 3e-5),
+        ];
+        let mut grasps = vec![
+            grasp(0, "top", [0.01, 0.0, 0.15, PI, 0.0, 0.2], 0.2),
+            grasp(0, "top", [0.0, 0.015, 0.16, PI - 0.1, 0.05, 0.35], 0.1),
+            grasp(1, "top", [-0.01, 0.01, 0.14, -PI + 0.05, 0.05, 0.6], 0.15),
+            grasp(1, "top", [0.0, -0.01, 0.145, PI, -0.05, 0.8], 0.25),
+            grasp(1, "side", [0.0, 0.08, 0.06, PI / 2.0, 0.0, 0.0], 0.25),
+        ];
+        grasps[3].sigma = [0.015, 0.01, 0.012, 0.2, 0.1, 0.25];
+        (fits, grasps)
+    }
+
+    /// Brute-force maximum of `ln f` over world parameters (z >= z_min): a 9^6 grid over
+    /// the box `lo..hi`, then each of its best 4 points refined by successively finer
+    /// 7^6 grids (one coarser step either side, step / 3 each level).
+    fn grid_maximum(
+        objective: &Objective,
+        lo: [f64; 6],
+        hi: [f64; 6],
+        z_min: f64,
+    ) -> (f64, PoseParams) {
+        let grid = |centre: [f64; 6], half: [f64; 6], n: usize| -> Vec<(f64, PoseParams)> {
+            (0..n.pow(6))
+                .into_par_iter()
+                .filter_map(|mut k| {
+                    let mut p = [0.0; 6];
+                    for d in 0..6 {
+                        let t = (k % n) as f64 / (n - 1) as f64;
+                        p[d] = centre[d] + half[d] * (2.0 * t - 1.0);
+                        k /= n;
+                    }
+                    (p[2] >= z_min).then(|| (objective.log_value(&p), p))
+                })
+                .collect()
+        };
+        let centre: [f64; 6] = std::array::from_fn(|d| 0.5 * (lo[d] + hi[d]));
+        let mut half: [f64; 6] = std::array::from_fn(|d| 0.5 * (hi[d] - lo[d]));
+        let mut coarse = grid(centre, half, 9);
+        coarse.sort_by(|a, b| b.0.total_cmp(&a.0));
+        half.iter_mut().for_each(|h| *h /= 4.0);
+        let mut best = (f64::NEG_INFINITY, [0.0; 6]);
+        for start in coarse.iter().take(4) {
+            let mut here = *start;
+            let mut h = half;
+            for _ in 0..6 {
+                here = grid(here.1, h, 7)
+                    .into_iter()
+                    .fold(here, |a, b| if b.0 > a.0 { b } else { a });
+                h.iter_mut().for_each(|v| *v /= 3.0);
+            }
+            if here.0 > best.0 {
+                best = here;
+            }
+        }
+        best
+    }
+
+    #[test]
+    fn optimum_matches_a_brute_force_grid() {
+        let (fits, grasps) = grid_database();
+        for kernel in [
+            Kernel::Gaussian,
+            Kernel::GaussianR {
+                s_translation_m2: 1e-4,
+                s_rotation_rad2: 0.02,
+            },
+            Kernel::Laplace {
+                b_translation_m: 0.02,
+                b_rotation_rad: 0.3,
+            },
+        ] {
+            let options = PlanOptions::with_kernel(kernel);
+            let out = plan(&fits, &grasps, "top", &options, None).unwrap();
+            let objective =
+                Objective::new(&fits, &grasps, "top", &kernel, &options.weights).unwrap();
+            // The box: the world grasps' parameters (yaw unwrapped near the first) +- margin.
+            let world: Vec<PoseParams> = grasps[..4]
+                .iter()
+                .map(|g| {
+                    params_from_pose(
+                        &(fits[g.model].base_from_model * pose_from_params(&g.model_from_palm)),
+                    )
+                })
+                .collect();
+            let mut lo = [f64::INFINITY; 6];
+            let mut hi = [f64::NEG_INFINITY; 6];
+            for w in &world {
+                for d in 0..6 {
+                    let v = if d >= 3 {
+                        world[0][d] + wrap_angle(w[d] - world[0][d])
+                    } else {
+                        w[d]
+                    };
+                    lo[d] = lo[d].min(v - if d < 3 { 0.01 } else { 0.1 });
+                    hi[d] = hi[d].max(v + if d < 3 { 0.01 } else { 0.1 });
+                }
+            }
+            let (grid_log, grid_p) = grid_maximum(&objective, lo, hi, options.z_min_m);
+            let planned = params_from_pose(&out.plan.grasp.pose);
+            let (dp, dr) = pose_error(&out.plan.grasp.pose, &pose_from_params(&grid_p));
+            println!(
+                "{}: plan ln f {:.6} at {planned:.4?}; grid {grid_log:.6} at {grid_p:.4?}; {dp:.2e} m {dr:.2e} rad; {} evaluations",
+                kernel.name(),
+                out.plan.grasp.log_objective,
+                out.plan.evaluations
+            );
+            assert!((out.plan.grasp.log_objective - grid_log).abs() < 1e-3);
+            assert!(dp < 1e-3 && dr < 1e-2, "{dp} m {dr} rad");
+            assert!(out.plan.unconstrained_optimum.is_none());
+            assert!(!out.plan.reachability_checked && !out.plan.grasp.reachable);
+            assert_eq!(out.plan.starts, 4);
+        }
+    }
+
+    /// Reachable exactly where `feasible(palm)` holds (joints: x, y, z of the palm).
+    struct Region<F: Fn(&Pose) -> bool + Sync>(F);
+
+    impl<F: Fn(&Pose) -> bool + Sync> Reachability for Region<F> {
+        fn reach(
+            &self,
+            palm: &Pose,
+            _hand: &HandPose,
+            _seeds: &[ArmJoints],
+        ) -> Result<IkSolution, Unreachable> {
+            let t = palm.translation.vector;
+            if (self.0)(palm) {
+                Ok(IkSolution {
+                    joints: [t.x, t.y, t.z, 0.0, 0.0, 0.0, 0.0],
+                    pos_err_m: 0.0,
+                    rot_err_rad: 0.0,
+                    iterations: 0,
+                })
+            } else {
+                Err(Unreachable {
+                    reason: UnreachableReason::OutsideWorkspace {
+                        palm_xyz_m: [t.x, t.y, t.z],
+                    },
+                    best: None,
+                })
+            }
+        }
+    }
+
+    /// One model at (0.6, 0, 0), unrotated, one top grasp 5 cm along its x: in the world
+    /// the density is separable in the parameters.
+    fn single_grasp(sigma: [f64; 6]) -> (Vec<ModelFit>, Vec<ExampleGrasp>) {
+        let fits = vec![fit("a", [0.6, 0.0, 0.0, 0.0, 0.0, 0.0], 1e-5)];
+        let mut g = grasp(0, "top", [0.05, 0.0, 0.15, PI, 0.0, 0.3], 0.2);
+        g.sigma = sigma;
+        (fits, vec![g])
+    }
+
+    #[test]
+    fn unreachable_optimum_gives_the_best_reachable_grasp_on_the_boundary() {
+        let (fits, grasps) = single_grasp([0.01, 0.01, 0.01, 0.1, 0.1, 0.1]);
+        let options = PlanOptions::with_kernel(Kernel::Gaussian);
+        // The grasp is at x = 0.65; only x <= 0.63 is reachable.
+        let region = Region(|p: &Pose| p.translation.x <= 0.63);
+        let out = plan(&fits, &grasps, "top", &options, Some(&region)).unwrap();
+        let p = params_from_pose(&out.plan.grasp.pose);
+        let unc = out.plan.unconstrained_optimum.as_ref().expect("marked");
+        println!(
+            "{p:.5?} ln f {} (unconstrained {}), {} constrained runs, {} evaluations, {} checks",
+            out.plan.grasp.log_objective,
+            unc.log_objective,
+            out.plan.constrained_runs,
+            out.plan.evaluations,
+            out.plan.reach_checks
+        );
+        assert!(out.plan.grasp.reachable && out.plan.grasp.joints.is_some());
+        assert!(p[0] <= 0.63 && p[0] > 0.629, "{p:?}");
+        let want = [0.63, 0.0, 0.15, PI, 0.0, 0.3];
+        for d in 1..6 {
+            let e = if d < 3 {
+                p[d] - want[d]
+            } else {
+                wrap_angle(p[d] - want[d])
+            };
+            assert!(e.abs() < if d < 3 { 1e-3 } else { 1e-2 }, "{d}: {p:?}");
+        }
+        // 2 sigma off in x costs exactly 2 in ln f.
+        assert!((unc.log_objective - out.plan.grasp.log_objective - 2.0).abs() < 0.02);
+        assert!((unc.pose.translation.x - 0.65).abs() < 1e-3);
+        assert_eq!(unc.unreachable.stage, Stage::Grasp);
+        assert!(matches!(
+            unc.unreachable.reason,
+            UnreachableReason::OutsideWorkspace { .. }
+        ));
+        // The baseline is the grasp itself, unreachable.
+        assert!(!out.best_single.grasp.reachable);
+        assert_eq!(
+            out.best_single.grasp.unreachable.as_ref().unwrap().stage,
+            Stage::Grasp
+        );
+    }
+
+    #[test]
+    fn unreachable_pregrasp_is_a_constraint_too() {
+        // Stiff in rotation, so that lowering the grasp beats tilting it.
+        let (fits, grasps) = single_grasp([0.01, 0.01, 0.01, 0.01, 0.01, 0.01]);
+        let options = PlanOptions::with_kernel(Kernel::Gaussian);
+        // A ceiling at z = 0.22: the grasp (z = 0.15) fits, its pre-grasp (0.25) does not.
+        let region = Region(|p: &Pose| p.translation.z <= 0.22);
+        let out = plan(&fits, &grasps, "top", &options, Some(&region)).unwrap();
+        let unc = out.plan.unconstrained_optimum.as_ref().expect("marked");
+        assert_eq!(unc.unreachable.stage, Stage::Pregrasp);
+        let grasp_z = out.plan.grasp.pose.translation.z;
+        let pre_z = out.plan.grasp.pregrasp_pose.translation.z;
+        assert!(out.plan.grasp.reachable);
+        assert!(
+            pre_z <= 0.22 && (grasp_z - 0.12).abs() < 2e-3,
+            "{grasp_z} {pre_z}"
+        );
+    }
+
+    #[test]
+    fn nothing_reachable_returns_the_optimum_marked_unreachable() {
+        let (fits, grasps) = single_grasp([0.01, 0.01, 0.01, 0.1, 0.1, 0.1]);
+        let options = PlanOptions::with_kernel(Kernel::LAPLACE_DEFAULT);
+        let region = Region(|_: &Pose| false);
+        let out = plan(&fits, &grasps, "top", &options, Some(&region)).unwrap();
+        assert!(!out.plan.grasp.reachable && out.plan.grasp.joints.is_none());
+        assert!(out.plan.grasp.unreachable.is_some());
+        let unc = out.plan.unconstrained_optimum.as_ref().unwrap();
+        assert_eq!(unc.pose, out.plan.grasp.pose);
+        assert!(out.plan.reach_checks <= 2 * (1 + options.feasibility_budget) + 2);
+    }
+
+    #[test]
+    fn grasps_at_plus_and_minus_pi_agree() {
+        // Two models in the same place, top grasps 0.1 rad apart in yaw across +-pi.
+        let fits = vec![
+            fit("a", [0.6, 0.0, 0.0, 0.0, 0.0, 0.0], 1e-5),
+            fit("b", [0.6, 0.0, 0.0, 0.0, 0.0, 0.0], 1e-5),
+        ];
+        let sigma = [0.01, 0.01, 0.01, 0.1, 0.1, 0.1];
+        let mut grasps = vec![
+            grasp(0, "top", [0.0, 0.0, 0.15, PI, 0.0, PI - 0.05], 0.2),
+            grasp(1, "top", [0.0, 0.0, 0.15, PI, 0.0, -PI + 0.05], 0.2),
+        ];
+        grasps.iter_mut().for_each(|g| g.sigma = sigma);
+        let options = PlanOptions::with_kernel(Kernel::Gaussian);
+        let out = plan(&fits, &grasps, "top", &options, None).unwrap();
+        let p = params_from_pose(&out.plan.grasp.pose);
+        // The mixture of two Gaussians 1 sigma apart peaks half way: yaw = +-pi.
+        assert!(wrap_angle(p[5] - PI).abs() < 2e-3, "{p:?}");
+        assert!((p[0] - 0.6).abs() < 1e-3 && p[1].abs() < 1e-3 && (p[2] - 0.15).abs() < 1e-3);
+        // Both grasps count equally there: 2 w N(0.05 rad off in yaw), written out.
+        let w = (1.0 - (-options.weights.lambda_psi * 0.2).exp())
+            * (-options.weights.lambda_eps_per_m2 * 1.2e-5).exp();
+        let density = (-0.5 * 0.25f64).exp() / ((2.0 * PI).powi(3) * sigma.iter().product::<f64>());
+        let want = 2.0 * w * density;
+        assert!(
+            (out.plan.grasp.objective / want - 1.0).abs() < 1e-4,
+            "{} vs {want}",
+            out.plan.grasp.objective
+        );
+        let c = &out.plan.per_model_contribution;
+        assert!((c[0] / c[1] - 1.0).abs() < 1e-2, "{c:?}");
+    }
+
+    #[test]
+    fn best_single_is_the_best_fitting_model_with_a_task_grasp() {
+        let (mut fits, grasps) = grid_database();
+        let options = PlanOptions::with_kernel(Kernel::LAPLACE_DEFAULT);
+        let out = plan(&fits, &grasps, "top", &options, None).unwrap();
+        // Model a fits best; of its top grasps, grasp 0 has the higher q.
+        assert_eq!((out.best_single.model, out.best_single.grasp_index), (0, 0));
+        let want = fits[0].base_from_model * pose_from_params(&grasps[0].model_from_palm);
+        let (dp, dr) = pose_error(&out.best_single.grasp.pose, &want);
+        assert!(dp < 1e-12 && dr < 1e-9);
+        assert_eq!(out.best_single.grasp.spread_rad, grasps[0].spread_rad);
+        // Only model b has a side grasp.
+        let out = plan(&fits, &grasps, "side", &options, None).unwrap();
+        assert_eq!((out.best_single.model, out.best_single.grasp_index), (1, 4));
+        // Model b fitting better: its best-quality top grasp (3).
+        fits[1].eps_m2 = 1e-6;
+        fits[1].sigma_m2 = 1e-7;
+        let out = plan(&fits, &grasps, "top", &options, None).unwrap();
+        assert_eq!((out.best_single.model, out.best_single.grasp_index), (1, 3));
+        assert_eq!(out.best_single.model_name, "b");
+    }
+
+    #[test]
+    fn the_table_bound_holds() {
+        // A grasp below the bound: the optimum sits on z = z_min, as the grid finds.
+        let (fits, mut grasps) = single_grasp([0.01, 0.01, 0.01, 0.1, 0.1, 0.1]);
+        grasps[0].model_from_palm[2] = 0.03;
+        let options = PlanOptions::with_kernel(Kernel::GaussianR {
+            s_translation_m2: 1e-4,
+            s_rotation_rad2: 0.02,
+        });
+        let out = plan(&fits, &grasps, "top", &options, None).unwrap();
+        let z = out.plan.grasp.pose.translation.z;
+        assert!(z >= options.z_min_m && z - options.z_min_m < 1e-4, "{z}");
+    }
+
+    #[test]
+    fn out_of_reach_on_the_real_arm_gives_the_best_reachable_grasp() {
+        let robot = crate::robot::shipped_robot();
+        // A mug at the far edge of the table, grasped from the top 0.25 m up: the wrist
+        // would be out of the arm's reach.
+        let fits = vec![fit("far", [0.98, 0.1, 0.0, 0.0, 0.0, 0.0], 1e-5)];
+        let grasps = vec![grasp(0, "top", [0.0, 0.0, 0.25, PI, 0.0, 0.0], 0.2)];
+        let options = PlanOptions::with_kernel(Kernel::LAPLACE_DEFAULT);
+        let t = std::time::Instant::now();
+        let out = plan(&fits, &grasps, "top", &options, Some(&robot)).unwrap();
+        let unc = out.plan.unconstrained_optimum.as_ref().expect("marked");
+        println!(
+            "{:?}: {:.4?} ln f {} (unconstrained {} {:?}), {} constrained runs, {} evaluations, {} checks, {:?}",
+            out.plan.grasp.reachable,
+            params_from_pose(&out.plan.grasp.pose),
+            out.plan.grasp.log_objective,
+            unc.log_objective,
+            unc.unreachable,
+            out.plan.constrained_runs,
+            out.plan.evaluations,
+            out.plan.reach_checks,
+            t.elapsed()
+        );
+        assert!(robot.reach(&unc.pose, &HandPose::OPEN, &[]).is_err());
+        assert!(out.plan.grasp.reachable);
+        // The joints reach grasp and pre-grasp, inside the limits, touching nothing.
+        let hand = open_hand(out.plan.grasp.spread_rad);
+        for (q, pose) in [
+            (out.plan.grasp.joints.unwrap(), out.plan.grasp.pose),
+            (
+                out.plan.grasp.pregrasp_joints.unwrap(),
+                out.plan.grasp.pregrasp_pose,
+            ),
+        ] {
+            let (dp, dr) = pose_error(&robot.arm().palm(&q), &pose);
+            assert!(dp < 1e-3 && dr < 1e-2, "{dp} {dr}");
+            robot.check_limits(&q).unwrap();
+            assert_eq!(robot.collision_at(&q, &hand), None);
+            robot.reach(&pose, &hand, &[q]).unwrap();
+        }
+        assert!(out.plan.grasp.log_objective < unc.log_objective);
+        // No reachable pose among random ones near the target beats it.
+        let objective =
+            Objective::new(&fits, &grasps, "top", &options.kernel, &options.weights).unwrap();
+        let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(3);
+        let centre = params_from_pose(&out.plan.grasp.pose);
+        let mut best_sample = f64::NEG_INFINITY;
+        let mut reachable_samples = 0;
+        for _ in 0..300 {
+            let p: PoseParams = std::array::from_fn(|d| {
+                centre[d]
+                    + rand::Rng::gen_range(&mut rng, -1.0..1.0) * if d < 3 { 0.05 } else { 0.4 }
+            });
+            let v = objective.log_value(&p);
+            if v <= best_sample || p[2] < options.z_min_m {
+                continue;
+            }
+            let pose = pose_from_params(&p);
+            let hand = open_hand(grasps[0].spread_rad);
+            let seed = out.plan.grasp.joints.unwrap();
+            if let Ok(s) = robot.reach(&pose, &hand, &[seed]) {
+                let pre = pregrasp_pose(&pose, options.pregrasp_offset_m);
+                if robot.reach(&pre, &hand, &[s.joints]).is_err() {
+                    continue;
+                }
+                best_sample = v;
+                reachable_samples += 1;
+            }
+        }
+        println!("best reachable sample ln f {best_sample} ({reachable_samples} improving)");
+        assert!(reachable_samples > 0);
+        assert!(out.plan.grasp.log_objective >= best_sample);
+    }
+}
