@@ -13,6 +13,7 @@ mod objects;
 mod output;
 mod quality;
 mod robot;
+mod train;
 mod trial;
 
 use clap::{Parser, Subcommand};
@@ -58,8 +59,12 @@ pub enum Command {
     /// The simulated depth camera: render scenes to point clouds.
     #[command(subcommand)]
     Camera(camera::CameraCommand),
-    /// Grasp quality (Ferrari–Canny epsilon, wrench-space volume) of given contacts.
+    /// Grasp quality (Ferrari–Canny epsilon, wrench-space volume) of given contacts, or of
+    /// the hand closed around an object mesh at a palm pose (auto-grasp).
     Quality(quality::QualityArgs),
+    /// Build a category database (models, task-labelled grasps, q, stability ranges)
+    /// from a teach-in file.
+    Train(train::TrainArgs),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -97,7 +102,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Calibrate(which) => calibrate::run(which),
         Command::Objects(which) => objects::run(which),
         Command::Camera(which) => camera::run(&cli.config, which),
-        Command::Quality(args) => quality::run(args),
+        Command::Quality(args) => quality::run(&cli.config, args),
+        Command::Train(args) => train::run(&cli.config, args),
         Command::Bench(which) => bench::run(&cli.config, which),
         Command::IpcPeer(args) => ipc::run_peer(args),
     }

@@ -81,6 +81,23 @@ pub enum MeshError {
     },
 }
 
+/// Reads a mesh file by its extension: `.obj`, `.stl` or `.ply` (any case).
+pub fn read_mesh(path: &Path) -> Result<TriMesh, MeshError> {
+    match path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
+        Some("obj") => obj::read_obj(path),
+        Some("stl") => stl::read_stl(path),
+        Some("ply") => ply::read_ply_mesh(path),
+        _ => Err(MeshError::UnsupportedFormat {
+            path: path.to_path_buf(),
+        }),
+    }
+}
+
 impl TriMesh {
     /// Checks that the mesh is non-empty, finite and its indices in range;
     /// `source` names it in errors.
