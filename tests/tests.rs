@@ -3,7 +3,9 @@
 mod calib;
 mod camera;
 mod can;
+mod category;
 mod fri;
+mod grasp;
 mod ipc;
 mod objects;
 mod quality;

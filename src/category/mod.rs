@@ -392,7 +392,10 @@ impl GraspEntry {
     /// The palm pose parameters `[x, y, z, ax, ay, az]` in the model's frame (the
     /// pose is checked finite when the database loads).
     pub fn params(&self) -> PoseParams {
-        let pose = self.pose.to_pose(&self.name).unwrap_or_else(|_| Pose::identity());
+        let pose = self
+            .pose
+            .to_pose(&self.name)
+            .unwrap_or_else(|_| Pose::identity());
         params_from_pose(&pose)
     }
 }
@@ -469,7 +472,12 @@ impl DatabaseFile {
                 });
             }
             if !g.spread_rad.is_finite() {
-                return invalid(what(), "spread_rad", g.spread_rad.to_string(), "must be finite");
+                return invalid(
+                    what(),
+                    "spread_rad",
+                    g.spread_rad.to_string(),
+                    "must be finite",
+                );
             }
             if !(g.q > 0.0 && g.q.is_finite()) {
                 return invalid(what(), "q", g.q.to_string(), "must be finite and > 0");

@@ -252,7 +252,8 @@ impl Template {
         u: &Offsets,
         standoff_m: f64,
     ) -> Option<(Pose, f64)> {
-        let spread = (self.spread_rad + u[5]).clamp(hand.spread_limits_rad.0, hand.spread_limits_rad.1);
+        let spread =
+            (self.spread_rad + u[5]).clamp(hand.spread_limits_rad.0, hand.spread_limits_rad.1);
         let rotation = self.orientation * UnitQuaternion::from_euler_angles(u[2], u[3], u[4]);
         let centre = finger_circle_centre(hand, spread);
         // The finger circle's centre (palm xy) on the line through the target.
@@ -284,7 +285,8 @@ impl Template {
                         a = mid;
                     }
                 }
-                return Some((at(a - u[6]), spread));
+                // 20 um short of the contact, so that rounding cannot make it touch.
+                return Some((at(a - 2e-5 - u[6]), spread));
             }
             free = next;
         }
@@ -309,7 +311,8 @@ struct Search<'a> {
 
 impl Search<'_> {
     fn place(&self, u: &Offsets) -> Option<(Pose, f64)> {
-        self.template.place(self.hand, self.object, u, self.standoff_m)
+        self.template
+            .place(self.hand, self.object, u, self.standoff_m)
     }
 
     /// Epsilon when force closure; otherwise a negative score that grows with the

@@ -17,7 +17,7 @@
 //! ```
 
 use super::CategoryError;
-use crate::geometry::{params_from_pose, PoseJson, PoseParams};
+use crate::geometry::{params_from_pose, Pose, PoseJson, PoseParams};
 use crate::mesh::procedural::Category;
 use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
@@ -89,7 +89,9 @@ pub struct CheckedGrasp {
     pub model: usize,
     /// Its task.
     pub task: String,
-    /// Palm pose parameters in the model's frame.
+    /// Palm pose in the model's frame.
+    pub pose: Pose,
+    /// The same as parameters `[x, y, z, ax, ay, az]`.
     pub params: PoseParams,
     /// Spread (rad).
     pub spread_rad: f64,
@@ -125,7 +127,10 @@ impl TeachFile {
             text += &format!("table_height_m = {}\n", float(h));
         }
         for m in &self.models {
-            text += &format!("\n[[model]]\nmesh = {}\n", string(&m.mesh.to_string_lossy()));
+            text += &format!(
+                "\n[[model]]\nmesh = {}\n",
+                string(&m.mesh.to_string_lossy())
+            );
             if let Some(n) = &m.name {
                 text += &format!("name = {}\n", string(n));
             }
@@ -237,6 +242,7 @@ impl TeachFile {
                     model: m,
                     task: g.task.clone(),
                     params: params_from_pose(&pose),
+                    pose,
                     spread_rad: g.spread_rad,
                 });
             }

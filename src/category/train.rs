@@ -14,7 +14,7 @@ use super::{
     ModelEntry, DATABASE_FILE, FORMAT_VERSION,
 };
 use crate::cloud::io::{write_atomically, write_cloud};
-use crate::geometry::{pose_from_params, PoseJson};
+use crate::geometry::{params_from_pose, PoseJson};
 use crate::mesh::procedural::Category;
 use crate::mesh::TriMesh;
 use crate::quality::autograsp::{evaluate_grasp, AutoGraspOptions, GraspObject, GraspSimError};
@@ -79,8 +79,8 @@ fn load_models(teach: &TeachFile, models_dir: &Path) -> Result<Loaded, CategoryE
                 model: name.clone(),
                 source,
             };
-            let mesh = crate::mesh::read_mesh(&path)
-                .map_err(|e| model_err(GraspSimError::Mesh(e)))?;
+            let mesh =
+                crate::mesh::read_mesh(&path).map_err(|e| model_err(GraspSimError::Mesh(e)))?;
             let object = GraspObject::new(&mesh, &path)
                 .map_err(model_err)?
                 .with_table(teach.table_height_m);
@@ -104,7 +104,7 @@ fn evaluate_all(
             let e = evaluate_grasp(
                 hand,
                 &models[g.model].2,
-                &pose_from_params(&g.params),
+                &g.pose,
                 g.spread_rad,
                 &options.simulation,
                 &params,
@@ -158,7 +158,13 @@ pub fn train(
         .simulation
         .validate()
         .and_then(|()| options.stability.validate())
-        .and_then(|()| options.metric.params().validate().map_err(GraspSimError::from))
+        .and_then(|()| {
+            options
+                .metric
+                .params()
+                .validate()
+                .map_err(GraspSimError::from)
+        })
         .map_err(|source| CategoryError::Simulation {
             grasp: "(all)".into(),
             source,
@@ -171,7 +177,17 @@ pub fn train(
             problem: "must be > 0".into(),
         });
     }
-    let grasps = teach.check(category, models_dir, hand.spread_limits_rad)?;
+    // Each pose exactly as the database stores it (and a planner reads it back),
+    // so that q is what the stored pose gives, to the last bit.
+    let mut grasps = teach.check(category, models_dir, hand.spread_limits_rad)?;
+    let stored: Vec<PoseJson> = grasps.iter().map(|g| PoseJson::from(&g.pose)).collect();
+    for (g, json) in grasps.iter_mut().zip(&stored) {
+        g.pose = json.to_pose(&g.name).map_err(|e| CategoryError::Grasp {
+            grasp: g.name.clone(),
+            problem: e.to_string(),
+        })?;
+        g.params = params_from_pose(&g.pose);
+    }
     let models = load_models(teach, models_dir)?;
     let evaluated = evaluate_all(hand, &grasps, &models, options)?;
     if let Some(p) = progress {
@@ -255,11 +271,12 @@ pub fn train(
         .iter()
         .zip(&evaluated)
         .zip(&ranges)
-        .map(|((g, e), r)| GraspEntry {
+        .zip(stored)
+        .map(|(((g, e), r), pose)| GraspEntry {
             name: g.name.clone(),
             model: models[g.model].0.clone(),
             task: g.task.clone(),
-            pose: PoseJson::from(&pose_from_params(&g.params)),
+            pose,
             spread_rad: g.spread_rad,
             q: e.q,
             volume: e.volume,

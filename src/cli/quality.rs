@@ -37,7 +37,12 @@ pub struct QualityArgs {
     #[arg(long, requires = "object", allow_hyphen_values = true)]
     pub pose: Option<String>,
     /// Spread of F1 and F2 about the palm normal (rad, 0..pi).
-    #[arg(long, default_value_t = 0.0, requires = "object", allow_hyphen_values = true)]
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        requires = "object",
+        allow_hyphen_values = true
+    )]
     pub spread: f64,
     /// Height of a table top in the object's frame (m): the table becomes an obstacle.
     #[arg(long, requires = "object", allow_hyphen_values = true)]
@@ -98,7 +103,10 @@ pub fn run(config: &Path, args: QualityArgs) -> anyhow::Result<ExitCode> {
     if let Some(object) = &args.object {
         return run_object(config, object, &args);
     }
-    let path = args.contacts.as_deref().context("--contacts or --object is required")?;
+    let path = args
+        .contacts
+        .as_deref()
+        .context("--contacts or --object is required")?;
     let q = evaluate_file(path)?;
     super::emit(args.json, &q, |q: &GraspQuality| {
         format!(
@@ -149,8 +157,16 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
         mu: args.mu,
         ..QualityParams::default()
     };
-    let e = evaluate_grasp(&hand, &grasp_object, &pose, args.spread, &options, &params, true)
-        .with_context(|| format!("grasp of {}", object.display()))?;
+    let e = evaluate_grasp(
+        &hand,
+        &grasp_object,
+        &pose,
+        args.spread,
+        &options,
+        &params,
+        true,
+    )
+    .with_context(|| format!("grasp of {}", object.display()))?;
     let stability = if args.stability {
         Some(stability_range(
             &hand,
@@ -527,7 +543,11 @@ pub fn bench_grasp(config: &Path, args: QualityBenchArgs) -> anyhow::Result<Exit
             .filter(|e| e.outcome.collision_at_start.is_some())
             .count() as f64
             / n,
-        mean_contacts: results.iter().map(|e| e.outcome.contacts.len()).sum::<usize>() as f64 / n,
+        mean_contacts: results
+            .iter()
+            .map(|e| e.outcome.contacts.len())
+            .sum::<usize>() as f64
+            / n,
         grasps_per_s,
         grasps_per_s_one_thread: one,
         parallel_speedup: grasps_per_s / one,

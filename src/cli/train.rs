@@ -82,6 +82,8 @@ pub struct SuggestArgs {
 #[derive(Debug, Deserialize)]
 struct Listing {
     category: Category,
+    seed: u64,
+    count: usize,
     instances: Vec<ListedInstance>,
 }
 
@@ -193,8 +195,8 @@ fn suggest(hand: &HandModel, args: SuggestArgs) -> anyhow::Result<ExitCode> {
     let listing_path = args.models.join("params.json");
     let text = std::fs::read_to_string(&listing_path)
         .with_context(|| format!("cannot read {}", listing_path.display()))?;
-    let listing: Listing = serde_json::from_str(&text)
-        .with_context(|| format!("{}", listing_path.display()))?;
+    let listing: Listing =
+        serde_json::from_str(&text).with_context(|| format!("{}", listing_path.display()))?;
     let models = listing
         .instances
         .into_iter()
@@ -223,13 +225,20 @@ fn suggest(hand: &HandModel, args: SuggestArgs) -> anyhow::Result<ExitCode> {
         &|| bar.inc(1),
     )?;
     bar.finish_and_clear();
+    let table = args
+        .table_z
+        .map(|z| format!(" --table-z {z}"))
+        .unwrap_or_default();
     let mut header = format!(
-        "Teach-in grasps of the {} models in {} (palm pose bh_palm in each model's frame).\n\
-         Proposed by `cell train suggest-grasps --seed {}`; review and edit, then run `cell train`.\n\
+        "Teach-in grasps of {count} procedural {category} models: palm (bh_palm) pose in each\n\
+         model's frame, spread of F1/F2. Models: `cell objects generate --category {category}\n\
+         --count {count} --seed {seed} --out DIR`. Proposed by `cell train suggest-grasps\n\
+         --models DIR --seed {search}{table}`; review and edit, then run `cell train`.\n\
          Epsilon of each proposal:\n",
-        listing.category,
-        args.models.display(),
-        args.seed
+        count = listing.count,
+        category = listing.category,
+        seed = listing.seed,
+        search = args.seed,
     );
     for r in &reports {
         header += &match r.epsilon {

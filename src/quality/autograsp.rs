@@ -176,9 +176,10 @@ impl GraspObject {
         let (_, location) = triangle.project_local_point_and_get_location(point, false);
         let pseudo = self.mesh.pseudo_normals();
         let n = match (location, pseudo) {
-            (TrianglePointLocation::OnEdge(i, _), Some(p)) => {
-                p.edges_pseudo_normal.get(id as usize).map(|e| e[i as usize])
-            }
+            (TrianglePointLocation::OnEdge(i, _), Some(p)) => p
+                .edges_pseudo_normal
+                .get(id as usize)
+                .map(|e| e[i as usize]),
             (TrianglePointLocation::OnVertex(i), Some(p)) => {
                 let v = self.mesh.indices()[id as usize][i as usize];
                 p.vertices_pseudo_normal.get(v as usize).copied()
@@ -368,8 +369,16 @@ pub fn close_hand(
             upper_rad,
         });
     }
-    let finite = object_from_palm.translation.vector.iter().all(|v| v.is_finite())
-        && object_from_palm.rotation.coords.iter().all(|v| v.is_finite());
+    let finite = object_from_palm
+        .translation
+        .vector
+        .iter()
+        .all(|v| v.is_finite())
+        && object_from_palm
+            .rotation
+            .coords
+            .iter()
+            .all(|v| v.is_finite());
     if !finite {
         return Err(GraspSimError::Pose {
             pose: format!("{object_from_palm:?}"),
@@ -494,7 +503,8 @@ pub fn retreat_until_clear(
             b = mid;
         }
     }
-    Some(back(b))
+    // 20 um clear of the contact, so that rounding cannot make it touch.
+    Some(back(b + 2e-5))
 }
 
 /// The quality of a grasp: Ferrari–Canny epsilon (and the wrench-space volume when
@@ -618,8 +628,6 @@ struct Sim<'a> {
 impl Sim<'_> {
     /// What the link at `object_from_link` intersects, if anything.
     fn hits(&self, link: &HandLink, object_from_link: &Pose) -> Option<Obstacle> {
-        #[cfg(test)]
-        tests::HITS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         for (local, shape) in &link.shapes {
             let pose = object_from_link * local;
             if let Some(h) = self.object.table_height_m {
@@ -660,8 +668,6 @@ impl Sim<'_> {
     /// from the object and the table (no BVH leaf box near its grown box); false
     /// when it may not be (or for shapes other than boxes).
     fn clear_by(&self, link: &HandLink, object_from_link: &Pose, margin_m: f64) -> bool {
-        #[cfg(test)]
-        tests::CLEARS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         link.shapes.iter().all(|(local, shape)| {
             let pose = object_from_link * local;
             if let Some(h) = self.object.table_height_m {
@@ -692,8 +698,7 @@ impl Sim<'_> {
         let tol = self.options.tolerance_rad;
         let (lo, hi) = finger.flex_limits_rad;
         let coupled = |flex: f64| {
-            let (p, d) =
-                finger.link_poses_from_base(base, flex, finger.coupled_distal_rad(flex));
+            let (p, d) = finger.link_poses_from_base(base, flex, finger.coupled_distal_rad(flex));
             self.any_hit([(&finger.proximal, p), (&finger.distal, d)])
         };
         let coupled_reach = finger
@@ -701,8 +706,7 @@ impl Sim<'_> {
             .proximal_m
             .max(finger.reach.distal_coupled_m(finger.distal_ratio));
         let coupled_clear = |flex: f64| {
-            let (p, d) =
-                finger.link_poses_from_base(base, flex, finger.coupled_distal_rad(flex));
+            let (p, d) = finger.link_poses_from_base(base, flex, finger.coupled_distal_rad(flex));
             self.clear_by(&finger.proximal, &p, FREE_MARGIN_M)
                 && self.clear_by(&finger.distal, &d, FREE_MARGIN_M)
         };
@@ -801,7 +805,10 @@ impl Sim<'_> {
                 }
                 None => {
                     let aabb = shape.compute_aabb(&pose).loosened(reach);
-                    mesh.bvh().intersect_aabb(&aabb).map(|id| (0.0, id)).collect()
+                    mesh.bvh()
+                        .intersect_aabb(&aabb)
+                        .map(|id| (0.0, id))
+                        .collect()
                 }
             };
             candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -829,8 +836,7 @@ impl Sim<'_> {
                 // The finger pushes into the object along the object's surface
                 // normal there: the face's, or at an edge or vertex the mesh's
                 // angle-weighted pseudo-normal.
-                let Some(outward) = self.object.surface_normal(id, &triangle, &c.point1)
-                else {
+                let Some(outward) = self.object.surface_normal(id, &triangle, &c.point1) else {
                     continue;
                 };
                 found.push(LinkContact {
@@ -857,16 +863,6 @@ impl Sim<'_> {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-
-    pub(super) static HITS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-    pub(super) static CLEARS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-
-    fn cpu_now() -> f64 {
-        let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-        // SAFETY: clock_gettime writes the timespec it is given.
-        unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut t) };
-        t.tv_sec as f64 + 1e-9 * t.tv_nsec as f64
-    }
     use crate::robot::description::Primitive;
     use crate::robot::{shipped_robot, Robot};
     use nalgebra::{Rotation3, UnitQuaternion};
@@ -912,9 +908,18 @@ pub(crate) mod tests {
             })
             .collect();
         let triangles = vec![
-            [0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], // -z, +z
-            [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7], // -y, +y
-            [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5], // -x, +x
+            [0, 2, 1],
+            [1, 2, 3],
+            [4, 5, 6],
+            [5, 7, 6], // -z, +z
+            [0, 1, 4],
+            [1, 5, 4],
+            [2, 6, 3],
+            [3, 6, 7], // -y, +y
+            [0, 4, 2],
+            [2, 4, 6],
+            [1, 3, 5],
+            [3, 7, 5], // -x, +x
         ];
         TriMesh {
             vertices,
@@ -930,11 +935,7 @@ pub(crate) mod tests {
     /// +x, the fingers' closing plane horizontal (palm x = object z), palm surface
     /// `gap_m` from the cylinder.
     pub(crate) fn side_pose(radius: f64, gap_m: f64) -> Pose {
-        let rot = Rotation3::from_basis_unchecked(&[
-            Vector3::z(),
-            -Vector3::y(),
-            Vector3::x(),
-        ]);
+        let rot = Rotation3::from_basis_unchecked(&[Vector3::z(), -Vector3::y(), Vector3::x()]);
         Pose::from_parts(
             nalgebra::Translation3::new(-(radius + 0.060 + gap_m), 0.0, 0.0),
             UnitQuaternion::from_rotation_matrix(&rot),
@@ -1027,8 +1028,14 @@ pub(crate) mod tests {
         // The whole hand inside a big block: nothing intersects a triangle, but the
         // palm is inside.
         let block = object(&cuboid([0.0; 3], [1.0; 3]));
-        let o = close_hand(&hand, &block, &Pose::identity(), 0.0, &AutoGraspOptions::default())
-            .unwrap();
+        let o = close_hand(
+            &hand,
+            &block,
+            &Pose::identity(),
+            0.0,
+            &AutoGraspOptions::default(),
+        )
+        .unwrap();
         assert_eq!(o.collision_at_start.unwrap().with, Obstacle::InsideObject);
         // Clear of the object but the fingers in the table.
         let obj = object(&cylinder(radius, 0.2, 32)).with_table(Some(-0.0));
@@ -1038,7 +1045,12 @@ pub(crate) mod tests {
     }
 
     /// The corners of a link's box shapes in the palm frame, from the full robot's FK.
-    fn corners(robot: &Robot, link: &str, hand: &HandPose, distal_override: Option<f64>) -> Vec<Point3<f64>> {
+    fn corners(
+        robot: &Robot,
+        link: &str,
+        hand: &HandPose,
+        distal_override: Option<f64>,
+    ) -> Vec<Point3<f64>> {
         let d = &robot.description;
         let mut q = robot.variables(&[0.0; 7], hand);
         let poses = crate::robot::kinematics::link_poses(d, &q);
@@ -1082,8 +1094,14 @@ pub(crate) mod tests {
         let hand = hand_of(&robot);
         let h = 0.125;
         let plate = object(&cuboid([0.0, 0.0, h + 0.01], [0.6, 0.6, 0.02]));
-        let o = close_hand(&hand, &plate, &Pose::identity(), 0.3, &AutoGraspOptions::default())
-            .unwrap();
+        let o = close_hand(
+            &hand,
+            &plate,
+            &Pose::identity(),
+            0.3,
+            &AutoGraspOptions::default(),
+        )
+        .unwrap();
         assert_eq!(o.collision_at_start, None);
         for (i, f) in ["bh_f1", "bh_f2", "bh_f3"].iter().enumerate() {
             let top = |flex: f64, link: &str| {
@@ -1139,71 +1157,6 @@ pub(crate) mod tests {
             assert!((c.point.z - h).abs() < 1e-6, "{c:?}");
             assert!((c.normal - Vector3::z()).norm() < 1e-6, "{c:?}");
         }
-    }
-
-    #[test]
-    #[ignore = "development timing, prints only"]
-    fn timing_on_a_mug() {
-        use crate::category::suggest::{standoff_m, templates};
-        use crate::mesh::procedural::{generate, instance_seed, Category, Params};
-        use rand::{Rng, SeedableRng};
-        let robot = shipped_robot();
-        let hand = hand_of(&robot);
-        let (mesh, params) = (0..)
-            .map(|i| generate(Category::Mug, instance_seed(1, i)))
-            .find(|(_, p)| matches!(p, Params::Mug(m) if m.handle.is_some()))
-            .unwrap();
-        let obj = object(&mesh).with_table(Some(0.0));
-        let ts = templates(&hand, &params, &mesh);
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
-        let mut poses = Vec::new();
-        while poses.len() < 300 {
-            let t = &ts[rng.gen_range(0..ts.len())];
-            let u = t.sample(&mut rng);
-            if let Some(p) = t.place(&hand, &obj, &u, standoff_m(&obj)) {
-                poses.push(p);
-            }
-        }
-        let options = AutoGraspOptions::default();
-        let sim = Sim { object: &obj, options: &options, dispatcher: DefaultQueryDispatcher };
-        let t0 = cpu_now();
-        let mut n = 0;
-        for (pose, spread) in &poses {
-            n += open_hand_collision(&hand, &obj, pose, *spread).is_some() as usize;
-        }
-        let t1 = cpu_now();
-        let h0 = HITS.load(std::sync::atomic::Ordering::Relaxed);
-        let c0 = CLEARS.load(std::sync::atomic::Ordering::Relaxed);
-        let mut finals = Vec::new();
-        for (pose, spread) in &poses {
-            for f in &hand.fingers {
-                let base = pose * f.palm_from_flex_base(*spread);
-                let (flex, distal, _) = sim.close_finger(f, &base);
-                let (p, d) = f.link_poses_from_base(&base, flex, distal);
-                finals.push((&f.proximal, p));
-                finals.push((&f.distal, d));
-            }
-            finals.push((&hand.palm, *pose));
-        }
-        let t2 = cpu_now();
-        let hits = HITS.load(std::sync::atomic::Ordering::Relaxed) - h0;
-        let clears = CLEARS.load(std::sync::atomic::Ordering::Relaxed) - c0;
-        let mut contacts = Vec::new();
-        for (l, p) in &finals {
-            sim.contacts_of(l, p, &mut contacts);
-        }
-        let t3 = cpu_now();
-        let mut eps = 0.0;
-        for (pose, spread) in &poses {
-            eps += evaluate_grasp(&hand, &obj, pose, *spread, &options, &QualityParams::default(), false).unwrap().epsilon;
-        }
-        let t4 = cpu_now();
-        let per = |a: f64, b: f64| 1e6 * (b - a) / poses.len() as f64;
-        eprintln!("per grasp: {} hits, {} clears", hits / poses.len(), clears / poses.len());
-        eprintln!(
-            "per grasp: open {:.0} us ({n} collide), close {:.0} us, contacts {:.0} us ({} total), full {:.0} us, eps sum {eps}",
-            per(t0, t1), per(t1, t2), per(t2, t3), contacts.len(), per(t3, t4)
-        );
     }
 
     #[test]

@@ -201,7 +201,11 @@ mod tests {
         .unwrap();
         // Translation along the axis of a long cylinder leaves the grasp as it is:
         // the cap in both directions.
-        assert_eq!((r.minus[2], r.plus[2]), (options.cap_m, options.cap_m), "{r:?}");
+        assert_eq!(
+            (r.minus[2], r.plus[2]),
+            (options.cap_m, options.cap_m),
+            "{r:?}"
+        );
         // Along the approach (x) the palm leaves the surface one way (no closure
         // from the fingers alone) and the approach stops at contact the other way
         // (up to the retreat limit): less than along the axis.

@@ -242,7 +242,10 @@ impl HandModel {
             };
             let to_flex = description.path_to(proximal);
             if !to_flex.starts_with(&palm_path) {
-                return Err(bad(flex_name, format!("is not below the palm link {palm_link}")));
+                return Err(bad(
+                    flex_name,
+                    format!("is not below the palm link {palm_link}"),
+                ));
             }
             let mut base = Vec::new();
             for &j in &to_flex[palm_path.len()..to_flex.len() - 1] {
@@ -258,7 +261,9 @@ impl HandModel {
                     Motion::Revolute { .. } => {
                         return Err(bad(
                             &joint.name,
-                            format!("moves between the palm and {flex_name} but does not follow the spread"),
+                            format!(
+                            "moves between the palm and {flex_name} but does not follow the spread"
+                        ),
                         ))
                     }
                 };
@@ -378,10 +383,18 @@ mod tests {
         let robot = shipped_robot();
         let hand =
             HandModel::from_description(&robot.description, "bh_palm", Path::new("x")).unwrap();
-        let want = [[-0.025, -0.05, 0.0591], [0.025, -0.05, 0.0591], [0.0, 0.05, 0.0591]];
+        let want = [
+            [-0.025, -0.05, 0.0591],
+            [0.025, -0.05, 0.0591],
+            [0.0, 0.05, 0.0591],
+        ];
         for (finger, w) in hand.fingers.iter().zip(want) {
             let t = finger.palm_from_flex_base(0.0).translation.vector;
-            assert!((t - Vector3::from(w)).norm() < 1e-4, "{}: {t:?}", finger.flex_joint);
+            assert!(
+                (t - Vector3::from(w)).norm() < 1e-4,
+                "{}: {t:?}",
+                finger.flex_joint
+            );
         }
     }
 }
