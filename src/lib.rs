@@ -8,6 +8,7 @@
 //! for the processes and data flow; each module below owns one concept.
 
 pub mod calib;
+pub mod category;
 pub mod cli;
 pub mod clock;
 pub mod cloud;

@@ -24,6 +24,8 @@ pub enum BenchCommand {
     Can(super::can::CanBenchArgs),
     /// Grasp quality metric: epsilon (and volume) evaluations per second on 3-finger contact sets.
     QualityMetric(QualityMetricBenchArgs),
+    /// Grasp simulation: auto-grasp + epsilon evaluations per second on a mug mesh.
+    Quality(super::quality::QualityBenchArgs),
     /// Point cloud latency between processes: iceoryx2 against a Unix domain socket.
     Ipc(super::ipc::IpcBenchArgs),
     /// Grasp planning: median time for 7 models x 3 grasps with reachability, per kernel.
@@ -104,6 +106,7 @@ pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Fri(args) => super::fri::bench_fri(config, args),
         BenchCommand::Can(args) => super::can::bench(args),
         BenchCommand::QualityMetric(args) => super::quality::bench_metric(args),
+        BenchCommand::Quality(args) => super::quality::bench_grasp(config, args),
         BenchCommand::Ipc(args) => super::ipc::bench_ipc(args),
         BenchCommand::Plan(args) => super::plan::bench(config, args),
     }

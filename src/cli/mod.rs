@@ -15,6 +15,7 @@ mod output;
 mod plan;
 mod quality;
 mod robot;
+mod train;
 mod trial;
 
 use clap::{Parser, Subcommand};
@@ -60,12 +61,16 @@ pub enum Command {
     /// The simulated depth camera: render scenes to point clouds.
     #[command(subcommand)]
     Camera(camera::CameraCommand),
-    /// Grasp quality (Ferrari–Canny epsilon, wrench-space volume) of given contacts.
+    /// Grasp quality (Ferrari–Canny epsilon, wrench-space volume) of given contacts, or of
+    /// the hand closed around an object mesh at a palm pose (auto-grasp).
     Quality(quality::QualityArgs),
     /// Execute one planned grasp (pre-grasp, approach, close, lift, hold) and report.
     Execute(execute::ExecuteArgs),
     /// Plan a grasp: maximise eq. 2 over every model's task grasps, reachable, with the best-single baseline.
     Plan(plan::PlanArgs),
+    /// Build a category database (models, task-labelled grasps, q, stability ranges)
+    /// from a teach-in file.
+    Train(train::TrainArgs),
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -103,9 +108,10 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Calibrate(which) => calibrate::run(&cli.config, which),
         Command::Objects(which) => objects::run(which),
         Command::Camera(which) => camera::run(&cli.config, which),
-        Command::Quality(args) => quality::run(args),
         Command::Execute(args) => execute::run(&cli.config, args),
         Command::Plan(args) => plan::run(&cli.config, args),
+        Command::Quality(args) => quality::run(&cli.config, args),
+        Command::Train(args) => train::run(&cli.config, args),
         Command::Bench(which) => bench::run(&cli.config, which),
         Command::IpcPeer(args) => ipc::run_peer(args),
     }

@@ -1,7 +1,15 @@
 //! `cell quality` and `cell bench quality-metric`.
 
 use super::bench::{median, QualityMetricBenchArgs};
+use crate::config::CellConfig;
+use crate::geometry::{params_from_pose, parse_pose};
+use crate::mesh::load_mesh;
+use crate::quality::autograsp::{
+    evaluate_grasp, AutoGraspOptions, FingerStop, GraspObject, StartCollision,
+};
+use crate::quality::stability::{stability_range, StabilityOptions, StabilityRange};
 use crate::quality::{self, gws, wrench, Contact, GraspQuality, QualityParams};
+use crate::robot::hand::HandModel;
 use anyhow::Context;
 use clap::Args;
 use nalgebra::{Point3, Vector3};
@@ -19,8 +27,32 @@ pub struct QualityArgs {
     /// [x,y,z], "normal": [nx,ny,nz]}], "centroid": [x,y,z], "cone_edges": 8}; metres,
     /// inward normals. Optional: mu (0.5), cone_edges (8), centroid (mean of the contact
     /// points), torque_scale (largest distance of a contact from the centroid).
-    #[arg(long)]
-    pub contacts: PathBuf,
+    #[arg(long, required_unless_present = "object", conflicts_with = "object")]
+    pub contacts: Option<PathBuf>,
+    /// Object mesh (OBJ, STL or PLY; metres, closed and outward) to close the hand
+    /// around (auto-grasp); needs --pose.
+    #[arg(long, requires = "pose")]
+    pub object: Option<PathBuf>,
+    /// Palm pose (bh_palm) in the object's frame: x,y,z,roll,pitch,yaw (m, rad, URDF rpy).
+    #[arg(long, requires = "object", allow_hyphen_values = true)]
+    pub pose: Option<String>,
+    /// Spread of F1 and F2 about the palm normal (rad, 0..pi).
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        requires = "object",
+        allow_hyphen_values = true
+    )]
+    pub spread: f64,
+    /// Height of a table top in the object's frame (m): the table becomes an obstacle.
+    #[arg(long, requires = "object", allow_hyphen_values = true)]
+    pub table_z: Option<f64>,
+    /// Friction coefficient for --object.
+    #[arg(long, default_value_t = 0.5, requires = "object")]
+    pub mu: f64,
+    /// Also compute the stability ranges (Delta, sigma per DOF) for --object.
+    #[arg(long, requires = "object")]
+    pub stability: bool,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -67,8 +99,15 @@ impl ContactsFile {
 }
 
 /// Runs `cell quality`.
-pub fn run(args: QualityArgs) -> anyhow::Result<ExitCode> {
-    let q = evaluate_file(&args.contacts)?;
+pub fn run(config: &Path, args: QualityArgs) -> anyhow::Result<ExitCode> {
+    if let Some(object) = &args.object {
+        return run_object(config, object, &args);
+    }
+    let path = args
+        .contacts
+        .as_deref()
+        .context("--contacts or --object is required")?;
+    let q = evaluate_file(path)?;
     super::emit(args.json, &q, |q: &GraspQuality| {
         format!(
             "epsilon {:.6}, volume {:.6e}, force closure: {}\n",
@@ -76,6 +115,128 @@ pub fn run(args: QualityArgs) -> anyhow::Result<ExitCode> {
             q.volume,
             if q.force_closure { "yes" } else { "no" }
         )
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// A contact in the output of `cell quality --object`.
+#[derive(Debug, Serialize)]
+struct ContactJson {
+    link: String,
+    point: [f64; 3],
+    normal: [f64; 3],
+}
+
+/// The output of `cell quality --object`.
+#[derive(Debug, Serialize)]
+struct AutoGraspReport {
+    epsilon: f64,
+    volume: f64,
+    force_closure: bool,
+    collision_at_start: bool,
+    /// Which link collides with what, when collision_at_start.
+    start_collision: Option<StartCollision>,
+    contacts: Vec<ContactJson>,
+    spread_rad: f64,
+    flex_rad: [f64; 3],
+    distal_rad: [f64; 3],
+    stops: [FingerStop; 3],
+    #[serde(skip_serializing_if = "Option::is_none")]
+    stability: Option<StabilityRange>,
+}
+
+fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Result<ExitCode> {
+    let text = args.pose.as_deref().context("--object needs --pose")?;
+    let pose = parse_pose(text).with_context(|| format!("--pose {text}"))?;
+    let config = CellConfig::load(config)?;
+    let hand = HandModel::load(&config)?;
+    let mesh = load_mesh(object, 1.0)?;
+    let grasp_object = GraspObject::new(&mesh, object)?.with_table(args.table_z);
+    let options = AutoGraspOptions::default();
+    let params = QualityParams {
+        mu: args.mu,
+        ..QualityParams::default()
+    };
+    let e = evaluate_grasp(
+        &hand,
+        &grasp_object,
+        &pose,
+        args.spread,
+        &options,
+        &params,
+        true,
+    )
+    .with_context(|| format!("grasp of {}", object.display()))?;
+    let stability = if args.stability {
+        Some(stability_range(
+            &hand,
+            &grasp_object,
+            &params_from_pose(&pose),
+            args.spread,
+            &options,
+            &params,
+            &StabilityOptions::default(),
+        )?)
+    } else {
+        None
+    };
+    let o = e.outcome;
+    let report = AutoGraspReport {
+        epsilon: e.epsilon,
+        volume: e.volume.unwrap_or(0.0),
+        force_closure: e.force_closure,
+        collision_at_start: o.collision_at_start.is_some(),
+        start_collision: o.collision_at_start,
+        contacts: o
+            .contacts
+            .iter()
+            .map(|c| ContactJson {
+                link: c.link.clone(),
+                point: c.point.into(),
+                normal: c.normal.into(),
+            })
+            .collect(),
+        spread_rad: o.hand.spread_rad,
+        flex_rad: o.hand.flex_rad,
+        distal_rad: o.distal_rad,
+        stops: o.stops,
+        stability,
+    };
+    super::emit(args.json, &report, |r: &AutoGraspReport| {
+        let mut text = match &r.start_collision {
+            Some(c) => format!("invalid start: {c}\n"),
+            None => format!(
+                "epsilon {:.6}, volume {:.6e}, force closure: {}, {} contacts\n",
+                r.epsilon,
+                r.volume,
+                if r.force_closure { "yes" } else { "no" },
+                r.contacts.len()
+            ),
+        };
+        for c in &r.contacts {
+            text += &format!(
+                "  {:<16} point {:>7.1} {:>7.1} {:>7.1} mm  normal {:>6.3} {:>6.3} {:>6.3}\n",
+                c.link,
+                1e3 * c.point[0],
+                1e3 * c.point[1],
+                1e3 * c.point[2],
+                c.normal[0],
+                c.normal[1],
+                c.normal[2]
+            );
+        }
+        if let Some(s) = &r.stability {
+            text += &format!(
+                "  Delta x y z {:.1} {:.1} {:.1} mm, ax ay az {:.1} {:.1} {:.1} deg\n",
+                1e3 * s.delta[0],
+                1e3 * s.delta[1],
+                1e3 * s.delta[2],
+                s.delta[3].to_degrees(),
+                s.delta[4].to_degrees(),
+                s.delta[5].to_degrees()
+            );
+        }
+        text
     })?;
     Ok(ExitCode::SUCCESS)
 }
@@ -238,4 +399,162 @@ fn evaluate_file(path: &Path) -> anyhow::Result<GraspQuality> {
         serde_json::from_str(&text).with_context(|| format!("contacts file {}", path.display()))?;
     quality::evaluate(&file.contacts, &file.params())
         .with_context(|| format!("contacts file {}", path.display()))
+}
+
+/// Options of `cell bench quality`.
+#[derive(Debug, Args)]
+pub struct QualityBenchArgs {
+    /// Grasp poses per repeat (around the mug's top, side and handle grasps).
+    #[arg(long, default_value_t = 1500)]
+    pub grasps: usize,
+    /// Timed repeats over all poses (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    pub repeats: usize,
+    /// Seed of the mug and the pose perturbations.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Worker threads for the parallel run (0 = one per core).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Print JSON (always JSON; accepted for uniformity).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// The result of `cell bench quality`.
+#[derive(Debug, Serialize)]
+struct GraspBench {
+    workload: String,
+    seed: u64,
+    mug_seed: u64,
+    mug_triangles: usize,
+    grasps: usize,
+    repeats: usize,
+    threads: usize,
+    force_closure_fraction: f64,
+    collision_at_start_fraction: f64,
+    mean_contacts: f64,
+    /// Auto-grasp + epsilon, parallel over all threads (the figure the goal is about).
+    grasps_per_s: f64,
+    /// Auto-grasp + epsilon on one thread: the baseline.
+    grasps_per_s_one_thread: f64,
+    parallel_speedup: f64,
+    /// Auto-grasp alone on one thread.
+    auto_grasp_per_s_one_thread: f64,
+    /// Median time of one auto-grasp + epsilon on one thread (us).
+    grasp_us_one_thread: f64,
+    goal_per_s: f64,
+}
+
+/// Runs `cell bench quality`.
+pub fn bench_grasp(config: &Path, args: QualityBenchArgs) -> anyhow::Result<ExitCode> {
+    use crate::category::suggest::{standoff_m, templates};
+    use crate::mesh::procedural::{generate, instance_seed, Category, Params};
+    use crate::quality::autograsp::close_hand;
+    use rayon::prelude::*;
+    anyhow::ensure!(
+        args.grasps > 0 && args.repeats > 0,
+        "--grasps and --repeats must be > 0"
+    );
+    let hand = HandModel::load(&CellConfig::load(config)?)?;
+    // The first mug of the seed's set that has a handle.
+    let (mug_seed, mesh, params) = (0..)
+        .map(|i| {
+            let s = instance_seed(args.seed, i);
+            let (mesh, params) = generate(Category::Mug, s);
+            (s, mesh, params)
+        })
+        .find(|(_, _, p)| matches!(p, Params::Mug(m) if m.handle.is_some()))
+        .expect("some mug has a handle");
+    let object = GraspObject::new(&mesh, Path::new("<bench mug>"))?.with_table(Some(0.0));
+    let options = AutoGraspOptions::default();
+    let quality = QualityParams::default();
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
+    let templates = templates(&hand, &params, &mesh);
+    let mut poses = Vec::with_capacity(args.grasps);
+    let mut attempts = 0;
+    while poses.len() < args.grasps {
+        attempts += 1;
+        anyhow::ensure!(attempts < 100 * args.grasps, "cannot place bench grasps");
+        let t = &templates[rng.gen_range(0..templates.len())];
+        let u = t.sample(&mut rng);
+        if let Some(p) = t.place(&hand, &object, &u, standoff_m(&object)) {
+            poses.push(p);
+        }
+    }
+    let evaluate = |(pose, spread): &(crate::geometry::Pose, f64)| {
+        evaluate_grasp(&hand, &object, pose, *spread, &options, &quality, false)
+    };
+    let results: Vec<_> = poses.iter().map(evaluate).collect::<Result<_, _>>()?;
+    let n = args.grasps as f64;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads)
+        .build()?;
+    let threads = pool.current_num_threads();
+    let progress = indicatif::ProgressBar::new(3 * args.repeats as u64);
+    let (mut parallel, mut single, mut closing) = (Vec::new(), Vec::new(), Vec::new());
+    for _ in 0..args.repeats {
+        let start = Instant::now();
+        let sum: f64 = pool.install(|| {
+            poses
+                .par_iter()
+                .map(|p| evaluate(p).map_or(0.0, |e| e.epsilon))
+                .sum()
+        });
+        std::hint::black_box(sum);
+        parallel.push(n / start.elapsed().as_secs_f64());
+        progress.inc(1);
+        let start = Instant::now();
+        let sum: f64 = poses
+            .iter()
+            .map(|p| evaluate(p).map_or(0.0, |e| e.epsilon))
+            .sum();
+        std::hint::black_box(sum);
+        single.push(n / start.elapsed().as_secs_f64());
+        progress.inc(1);
+        let start = Instant::now();
+        let count: usize = poses
+            .iter()
+            .map(|(pose, spread)| {
+                close_hand(&hand, &object, pose, *spread, &options).map_or(0, |o| o.contacts.len())
+            })
+            .sum();
+        std::hint::black_box(count);
+        closing.push(n / start.elapsed().as_secs_f64());
+        progress.inc(1);
+    }
+    progress.finish_and_clear();
+    let grasps_per_s = median(&mut parallel);
+    let one = median(&mut single);
+    let report = GraspBench {
+        workload: "auto-grasp (BH8-282, 0.04 rad steps, bisection to 1e-4 rad) + fast epsilon \
+                   (mu 0.5, 8 edges) at seeded poses around a procedural mug's top, side and \
+                   handle grasps (approached to contact, table at z = 0)"
+            .into(),
+        seed: args.seed,
+        mug_seed,
+        mug_triangles: mesh.triangles.len(),
+        grasps: args.grasps,
+        repeats: args.repeats,
+        threads,
+        force_closure_fraction: results.iter().filter(|e| e.force_closure).count() as f64 / n,
+        collision_at_start_fraction: results
+            .iter()
+            .filter(|e| e.outcome.collision_at_start.is_some())
+            .count() as f64
+            / n,
+        mean_contacts: results
+            .iter()
+            .map(|e| e.outcome.contacts.len())
+            .sum::<usize>() as f64
+            / n,
+        grasps_per_s,
+        grasps_per_s_one_thread: one,
+        parallel_speedup: grasps_per_s / one,
+        auto_grasp_per_s_one_thread: median(&mut closing),
+        grasp_us_one_thread: 1e6 / one,
+        goal_per_s: 1000.0,
+    };
+    super::emit(true, &report, |_| String::new())?;
+    Ok(ExitCode::SUCCESS)
 }

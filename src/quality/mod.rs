@@ -7,8 +7,10 @@
 //! the hull only toward the origin and is exact; qhull gives the volume (and is the
 //! fallback for epsilon should the expansion fail numerically).
 
+pub mod autograsp;
 pub mod epsilon;
 pub mod gws;
+pub mod stability;
 pub mod wrench;
 
 use nalgebra::Point3;

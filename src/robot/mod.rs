@@ -9,6 +9,7 @@
 
 pub mod collision;
 pub mod description;
+pub mod hand;
 pub mod ik;
 pub mod kinematics;
 
