@@ -6,6 +6,7 @@ mod can;
 mod fri;
 mod ipc;
 mod objects;
+mod plan;
 mod quality;
 mod shipped_files;
 mod trial;

@@ -307,7 +307,10 @@ fn thread_cpu_ms() -> f64 {
     };
     // SAFETY: `ts` is a valid, writable timespec; the clock id is a Linux constant.
     let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    assert_eq!(rc, 0, "clock_gettime(CLOCK_THREAD_CPUTIME_ID) cannot fail on Linux");
+    assert_eq!(
+        rc, 0,
+        "clock_gettime(CLOCK_THREAD_CPUTIME_ID) cannot fail on Linux"
+    );
     ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6
 }
 

@@ -152,13 +152,13 @@ pub fn grasps_from_json(
                 g.task
             )
         };
-        let model = fits
-            .iter()
-            .position(|f| f.name == g.model)
-            .ok_or_else(|| PlanError::Parse {
-                path: path.to_path_buf(),
-                message: format!("grasp {i} names model {:?}, which has no fit", g.model),
-            })?;
+        let model =
+            fits.iter()
+                .position(|f| f.name == g.model)
+                .ok_or_else(|| PlanError::Parse {
+                    path: path.to_path_buf(),
+                    message: format!("grasp {i} names model {:?}, which has no fit", g.model),
+                })?;
         let pose = g
             .model_from_palm
             .to_pose(&what("model_from_palm"))

@@ -59,16 +59,11 @@ impl KernelTerm {
     /// `ln P(d)`.
     #[inline]
     pub fn log_density(&self, d: &[f64; 6]) -> f64 {
-        let mut e = 0.0;
-        if self.absolute {
-            for i in 0..6 {
-                e += self.coef[i] * d[i].abs();
-            }
+        let e: f64 = if self.absolute {
+            self.coef.iter().zip(d).map(|(c, d)| c * d.abs()).sum()
         } else {
-            for i in 0..6 {
-                e += self.coef[i] * d[i] * d[i];
-            }
-        }
+            self.coef.iter().zip(d).map(|(c, d)| c * d * d).sum()
+        };
         self.log_norm - e
     }
 }
@@ -154,8 +149,13 @@ impl Kernel {
                 b_translation_m,
                 b_rotation_rad,
             } => {
-                let b: [f64; 6] =
-                    std::array::from_fn(|i| if i < 3 { b_translation_m } else { b_rotation_rad });
+                let b: [f64; 6] = std::array::from_fn(|i| {
+                    if i < 3 {
+                        b_translation_m
+                    } else {
+                        b_rotation_rad
+                    }
+                });
                 KernelTerm {
                     log_norm: -b.iter().map(|b| (2.0 * b).ln()).sum::<f64>(),
                     coef: std::array::from_fn(|i| 1.0 / b[i]),
@@ -233,12 +233,18 @@ mod tests {
             &(Matrix6::from_diagonal(&Vector6::from_fn(|i, _| sigma_mm[i].powi(2)))
                 + Matrix6::identity() * 50.0),
         );
-        let ours = Kernel::paper_gaussian_r(50.0).term(&SIGMA).log_density(&D).exp();
+        let ours = Kernel::paper_gaussian_r(50.0)
+            .term(&SIGMA)
+            .log_density(&D)
+            .exp();
         assert!((ours * 1e-9 / paper - 1.0).abs() < 1e-9, "{ours} {paper}");
         let paper: f64 = (0..6)
             .map(|i| (-d_mm[i].abs() / 50.0).exp() / 100.0)
             .product();
-        let ours = Kernel::paper_laplace(50.0).term(&SIGMA).log_density(&D).exp();
+        let ours = Kernel::paper_laplace(50.0)
+            .term(&SIGMA)
+            .log_density(&D)
+            .exp();
         assert!((ours * 1e-9 / paper - 1.0).abs() < 1e-9, "{ours} {paper}");
     }
 }

@@ -166,7 +166,12 @@ pub(crate) mod test_support {
         let grasps = vec![
             grasp(0, "side", [0.0, 0.08, 0.06, FRAC_PI_2, 0.0, 0.0], 0.2),
             grasp(1, "side", [0.01, 0.085, 0.05, FRAC_PI_2, 0.05, -0.1], 0.15),
-            grasp(0, "top", [0.0, 0.0, 0.2, std::f64::consts::PI, 0.0, 0.0], 0.3),
+            grasp(
+                0,
+                "top",
+                [0.0, 0.0, 0.2, std::f64::consts::PI, 0.0, 0.0],
+                0.3,
+            ),
             grasp(0, "side", [0.0, 0.075, 0.07, 1.5, 0.0, 0.1], 0.05),
         ];
         (fits, grasps)

@@ -323,7 +323,9 @@ mod tests {
 
     #[test]
     fn quadratic_minimum_and_limits() {
-        let f = |x: &[f64]| (x[0] - 1.0).powi(2) + 2.0 * (x[1] + 2.0).powi(2) + 3.0 * (x[2] - 0.5).powi(2);
+        let f = |x: &[f64]| {
+            (x[0] - 1.0).powi(2) + 2.0 * (x[1] + 2.0).powi(2) + 3.0 * (x[2] - 0.5).powi(2)
+        };
         // The default tolerances stop within TolFun of the minimum value...
         let r = nelder_mead(f, &[0.0, 0.0, 0.0], &NelderMeadOptions::default());
         assert!(r.converged && r.fx < 1e-4, "{r:?}");
@@ -350,7 +352,13 @@ mod tests {
         assert!(!r.converged && (40..=42).contains(&r.evaluations), "{r:?}");
         // NaN counts as +inf: the search walks away from where f is undefined.
         let r = nelder_mead(
-            |x| if x[0] < 0.5 { f64::NAN } else { (x[0] - 2.0).powi(2) },
+            |x| {
+                if x[0] < 0.5 {
+                    f64::NAN
+                } else {
+                    (x[0] - 2.0).powi(2)
+                }
+            },
             &[1.0],
             &NelderMeadOptions::default(),
         );

@@ -56,7 +56,11 @@ fn rpy_from_rotation(m: &[[f64; 3]; 3]) -> (f64, f64, f64) {
     if m[2][0].abs() < 1.0 {
         let pitch = -m[2][0].asin();
         let c = pitch.cos();
-        ((m[2][1] / c).atan2(m[2][2] / c), pitch, (m[1][0] / c).atan2(m[0][0] / c))
+        (
+            (m[2][1] / c).atan2(m[2][2] / c),
+            pitch,
+            (m[1][0] / c).atan2(m[0][0] / c),
+        )
     } else if m[2][0] <= -1.0 {
         (m[0][1].atan2(m[0][2]), std::f64::consts::FRAC_PI_2, 0.0)
     } else {
@@ -85,22 +89,18 @@ pub struct Breakdown {
     pub per_grasp_log: Vec<(usize, f64)>,
 }
 
-impl Breakdown {
-    /// The grasp whose term is the largest (the first among equals).
-    pub fn dominant_grasp(&self) -> usize {
-        let mut best = self.per_grasp_log[0];
-        for &g in &self.per_grasp_log[1..] {
-            if g.1 > best.1 {
-                best = g;
-            }
-        }
-        best.0
-    }
-}
-
 /// Fails with a message naming `what` unless `value` is finite and `>= 0` (or `> 0`).
-pub(crate) fn check_value(what: &str, value: f64, strictly_positive: bool) -> Result<(), PlanError> {
-    let ok = value.is_finite() && if strictly_positive { value > 0.0 } else { value >= 0.0 };
+pub(crate) fn check_value(
+    what: &str,
+    value: f64,
+    strictly_positive: bool,
+) -> Result<(), PlanError> {
+    let ok = value.is_finite()
+        && if strictly_positive {
+            value > 0.0
+        } else {
+            value >= 0.0
+        };
     if ok {
         Ok(())
     } else {
@@ -194,7 +194,11 @@ impl Objective {
         validate(fits, grasps)?;
         validate_kernel(kernel)?;
         check_value("weights lambda_psi", weights.lambda_psi, true)?;
-        check_value("weights lambda_eps_per_m2", weights.lambda_eps_per_m2, false)?;
+        check_value(
+            "weights lambda_eps_per_m2",
+            weights.lambda_eps_per_m2,
+            false,
+        )?;
         let mut task_grasps: Vec<usize> = (0..grasps.len())
             .filter(|&g| grasps[g].task == task)
             .collect();
@@ -266,7 +270,9 @@ impl Objective {
                 // r = a * rotation, t = a * x + translation.
                 let r: [[f64; 3]; 3] = std::array::from_fn(|i| {
                     std::array::from_fn(|j| {
-                        a[i][0] * rotation[0][j] + a[i][1] * rotation[1][j] + a[i][2] * rotation[2][j]
+                        a[i][0] * rotation[0][j]
+                            + a[i][1] * rotation[1][j]
+                            + a[i][2] * rotation[2][j]
                     })
                 });
                 let t: [f64; 3] = std::array::from_fn(|i| {
@@ -310,8 +316,11 @@ impl Objective {
     pub fn breakdown(&self, x: &PoseParams) -> Breakdown {
         let mut total = LogSumExp::default();
         let mut per_model = vec![LogSumExp::default(); self.models];
-        let mut per_grasp: Vec<(usize, f64)> =
-            self.terms.iter().map(|t| (t.grasp, f64::NEG_INFINITY)).collect();
+        let mut per_grasp: Vec<(usize, f64)> = self
+            .terms
+            .iter()
+            .map(|t| (t.grasp, f64::NEG_INFINITY))
+            .collect();
         let mut slot = 0;
         self.for_each_term(x, |term, t| {
             total.add(t);
@@ -426,7 +435,11 @@ mod tests {
                     b_rotation_rad,
                 } => (0..6)
                     .map(|i| {
-                        let b = if i < 3 { b_translation_m } else { b_rotation_rad };
+                        let b = if i < 3 {
+                            b_translation_m
+                        } else {
+                            b_rotation_rad
+                        };
                         (-d[i].abs() / b).exp() / (2.0 * b)
                     })
                     .product(),
@@ -511,9 +524,14 @@ mod tests {
     #[test]
     fn far_from_every_grasp_the_log_stays_finite() {
         let (fits, grasps) = two_model_database();
-        let objective =
-            Objective::new(&fits, &grasps, "side", &Kernel::Gaussian, &Weights::default())
-                .unwrap();
+        let objective = Objective::new(
+            &fits,
+            &grasps,
+            "side",
+            &Kernel::Gaussian,
+            &Weights::default(),
+        )
+        .unwrap();
         let v = objective.log_value(&[5.0, 5.0, 5.0, 0.0, 0.0, 0.0]);
         assert!(v.is_finite() && v < -1e4, "{v}");
     }
@@ -556,15 +574,24 @@ mod tests {
             Err(PlanError::NoGrasps)
         ));
         grasps[1].sigma[4] = 0.0;
-        let err = Objective::new(&fits, &grasps, "side", &k, &w).unwrap_err().to_string();
+        let err = Objective::new(&fits, &grasps, "side", &k, &w)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("grasp 1") && err.contains("sigma[4]"), "{err}");
         grasps[1].sigma[4] = 0.1;
         fits[1].eps_m2 = f64::NAN;
-        let err = Objective::new(&fits, &grasps, "side", &k, &w).unwrap_err().to_string();
-        assert!(err.contains("fit 1") && err.contains("eps_m2") && err.contains("NaN"), "{err}");
+        let err = Objective::new(&fits, &grasps, "side", &k, &w)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("fit 1") && err.contains("eps_m2") && err.contains("NaN"),
+            "{err}"
+        );
         fits[1].eps_m2 = 1e-5;
         grasps.push(grasp(7, "side", [0.0; 6], 0.1));
-        let err = Objective::new(&fits, &grasps, "side", &k, &w).unwrap_err().to_string();
+        let err = Objective::new(&fits, &grasps, "side", &k, &w)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("model 7"), "{err}");
     }
 }

@@ -241,7 +241,14 @@ pub struct PlanOutcome {
 /// Search variables `[x, y, u, ax, ay, az]` of world parameters (`u = sqrt(z - z_min)`,
 /// 0 below the bound).
 pub fn search_from_params(p: &PoseParams, z_min_m: f64) -> [f64; 6] {
-    [p[0], p[1], (p[2] - z_min_m).max(0.0).sqrt(), p[3], p[4], p[5]]
+    [
+        p[0],
+        p[1],
+        (p[2] - z_min_m).max(0.0).sqrt(),
+        p[3],
+        p[4],
+        p[5],
+    ]
 }
 
 /// World parameters of search variables (`z = z_min + u^2`).
@@ -503,7 +510,8 @@ pub fn plan(
         .grasps()
         .map(|g| {
             let grasp = &grasps[g];
-            let world = fits[grasp.model].base_from_model * pose_from_params(&grasp.model_from_palm);
+            let world =
+                fits[grasp.model].base_from_model * pose_from_params(&grasp.model_from_palm);
             params_from_pose(&world)
         })
         .collect();
@@ -570,7 +578,7 @@ pub fn plan(
     let plan = GraspPlan {
         task: task.to_string(),
         kernel: options.kernel,
-        dominant_grasp: breakdown.dominant_grasp(),
+        dominant_grasp: problem.objective.dominant_grasp(&p),
         per_model_contribution: breakdown.per_model_log.iter().map(|l| l.exp()).collect(),
         grasp,
         reachability_checked: reach.is_some(),
@@ -627,7 +635,10 @@ fn best_reachable(
         checker.checks += 1;
         if let Some((reached, _)) = checker.reach.nearest_reachable(&target, &hand) {
             let x = search_from_params(&params_from_pose(&(reached * back)), options.z_min_m);
-            projected.push(Point { g: problem.g(&x), x });
+            projected.push(Point {
+                g: problem.g(&x),
+                x,
+            });
         }
     }
     let mut groups: Vec<Vec<Point>> = vec![projected, other_optima.to_vec()];
@@ -647,7 +658,10 @@ fn best_reachable(
                 let mut p = centre;
                 p[d] += sign * scale * if d < 3 { 0.01 } else { 0.1 };
                 let x = search_from_params(&p, options.z_min_m);
-                probes.push(Point { g: problem.g(&x), x });
+                probes.push(Point {
+                    g: problem.g(&x),
+                    x,
+                });
             }
         }
     }
@@ -687,8 +701,8 @@ fn best_reachable(
     // The last reachable point on the way from the best reachable one to the optimum
     // (angles unwrapped toward the reachable point).
     let mut target = optimum.x;
-    for i in 3..6 {
-        target[i] = first.x[i] + wrap_angle(target[i] - first.x[i]);
+    for (t, f) in target.iter_mut().zip(&first.x).skip(3) {
+        *t = f + wrap_angle(*t - f);
     }
     let (mut lo, mut hi) = (0.0, 1.0);
     let mut lo_f = first_f;
@@ -712,7 +726,13 @@ fn best_reachable(
     }
     if lo > 0.0 {
         let x: [f64; 6] = std::array::from_fn(|i| first.x[i] + lo * (target[i] - first.x[i]));
-        feasible.push((Point { g: problem.g(&x), x }, lo_f));
+        feasible.push((
+            Point {
+                g: problem.g(&x),
+                x,
+            },
+            lo_f,
+        ));
     }
     let mut best: Option<(Point, Feasible)> = None;
     for &(point, f) in &feasible {
@@ -885,7 +905,11 @@ mod tests {
             let mut hi = [f64::NEG_INFINITY; 6];
             for w in &world {
                 for d in 0..6 {
-                    let v = if d >= 3 { world[0][d] + wrap_angle(w[d] - world[0][d]) } else { w[d] };
+                    let v = if d >= 3 {
+                        world[0][d] + wrap_angle(w[d] - world[0][d])
+                    } else {
+                        w[d]
+                    };
                     lo[d] = lo[d].min(v - if d < 3 { 0.01 } else { 0.1 });
                     hi[d] = hi[d].max(v + if d < 3 { 0.01 } else { 0.1 });
                 }
@@ -954,24 +978,39 @@ mod tests {
         let out = plan(&fits, &grasps, "top", &options, Some(&region)).unwrap();
         let p = params_from_pose(&out.plan.grasp.pose);
         let unc = out.plan.unconstrained_optimum.as_ref().expect("marked");
-        println!("{p:.5?} ln f {} (unconstrained {}), {} constrained runs, {} evaluations, {} checks",
-            out.plan.grasp.log_objective, unc.log_objective, out.plan.constrained_runs,
-            out.plan.evaluations, out.plan.reach_checks);
+        println!(
+            "{p:.5?} ln f {} (unconstrained {}), {} constrained runs, {} evaluations, {} checks",
+            out.plan.grasp.log_objective,
+            unc.log_objective,
+            out.plan.constrained_runs,
+            out.plan.evaluations,
+            out.plan.reach_checks
+        );
         assert!(out.plan.grasp.reachable && out.plan.grasp.joints.is_some());
         assert!(p[0] <= 0.63 && p[0] > 0.629, "{p:?}");
         let want = [0.63, 0.0, 0.15, PI, 0.0, 0.3];
         for d in 1..6 {
-            let e = if d < 3 { p[d] - want[d] } else { wrap_angle(p[d] - want[d]) };
+            let e = if d < 3 {
+                p[d] - want[d]
+            } else {
+                wrap_angle(p[d] - want[d])
+            };
             assert!(e.abs() < if d < 3 { 1e-3 } else { 1e-2 }, "{d}: {p:?}");
         }
         // 2 sigma off in x costs exactly 2 in ln f.
         assert!((unc.log_objective - out.plan.grasp.log_objective - 2.0).abs() < 0.02);
         assert!((unc.pose.translation.x - 0.65).abs() < 1e-3);
         assert_eq!(unc.unreachable.stage, Stage::Grasp);
-        assert!(matches!(unc.unreachable.reason, UnreachableReason::OutsideWorkspace { .. }));
+        assert!(matches!(
+            unc.unreachable.reason,
+            UnreachableReason::OutsideWorkspace { .. }
+        ));
         // The baseline is the grasp itself, unreachable.
         assert!(!out.best_single.grasp.reachable);
-        assert_eq!(out.best_single.grasp.unreachable.as_ref().unwrap().stage, Stage::Grasp);
+        assert_eq!(
+            out.best_single.grasp.unreachable.as_ref().unwrap().stage,
+            Stage::Grasp
+        );
     }
 
     #[test]
@@ -987,7 +1026,10 @@ mod tests {
         let grasp_z = out.plan.grasp.pose.translation.z;
         let pre_z = out.plan.grasp.pregrasp_pose.translation.z;
         assert!(out.plan.grasp.reachable);
-        assert!(pre_z <= 0.22 && (grasp_z - 0.12).abs() < 2e-3, "{grasp_z} {pre_z}");
+        assert!(
+            pre_z <= 0.22 && (grasp_z - 0.12).abs() < 2e-3,
+            "{grasp_z} {pre_z}"
+        );
     }
 
     #[test]
@@ -1025,12 +1067,28 @@ mod tests {
         // Both grasps count equally there: 2 w N(0.05 rad off in yaw), written out.
         let w = (1.0 - (-options.weights.lambda_psi * 0.2).exp())
             * (-options.weights.lambda_eps_per_m2 * 1.2e-5).exp();
-        let density = (-0.5 * 0.25f64).exp()
-            / ((2.0 * PI).powi(3) * sigma.iter().product::<f64>());
+        let density = (-0.5 * 0.25f64).exp() / ((2.0 * PI).powi(3) * sigma.iter().product::<f64>());
         let want = 2.0 * w * density;
-        assert!((out.plan.grasp.objective / want - 1.0).abs() < 1e-4, "{} vs {want}", out.plan.grasp.objective);
+        assert!(
+            (out.plan.grasp.objective / want - 1.0).abs() < 1e-4,
+            "{} vs {want}",
+            out.plan.grasp.objective
+        );
         let c = &out.plan.per_model_contribution;
         assert!((c[0] / c[1] - 1.0).abs() < 1e-2, "{c:?}");
+    }
+
+    #[test]
+    fn parallel_and_serial_plans_are_identical() {
+        let (fits, grasps) = grid_database();
+        let region = Region(|p: &Pose| p.translation.x <= 0.605);
+        for reach in [None, Some(&region as &dyn Reachability)] {
+            let mut options = PlanOptions::with_kernel(Kernel::GAUSSIAN_R_DEFAULT);
+            let a = plan(&fits, &grasps, "top", &options, reach).unwrap();
+            options.parallel = false;
+            let b = plan(&fits, &grasps, "top", &options, reach).unwrap();
+            assert_eq!(a, b);
+        }
     }
 
     #[test]
@@ -1098,7 +1156,10 @@ mod tests {
         let hand = open_hand(out.plan.grasp.spread_rad);
         for (q, pose) in [
             (out.plan.grasp.joints.unwrap(), out.plan.grasp.pose),
-            (out.plan.grasp.pregrasp_joints.unwrap(), out.plan.grasp.pregrasp_pose),
+            (
+                out.plan.grasp.pregrasp_joints.unwrap(),
+                out.plan.grasp.pregrasp_pose,
+            ),
         ] {
             let (dp, dr) = pose_error(&robot.arm().palm(&q), &pose);
             assert!(dp < 1e-3 && dr < 1e-2, "{dp} {dr}");
@@ -1108,14 +1169,16 @@ mod tests {
         }
         assert!(out.plan.grasp.log_objective < unc.log_objective);
         // No reachable pose among random ones near the target beats it.
-        let objective = Objective::new(&fits, &grasps, "top", &options.kernel, &options.weights).unwrap();
+        let objective =
+            Objective::new(&fits, &grasps, "top", &options.kernel, &options.weights).unwrap();
         let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(3);
         let centre = params_from_pose(&out.plan.grasp.pose);
         let mut best_sample = f64::NEG_INFINITY;
         let mut reachable_samples = 0;
         for _ in 0..300 {
             let p: PoseParams = std::array::from_fn(|d| {
-                centre[d] + rand::Rng::gen_range(&mut rng, -1.0..1.0) * if d < 3 { 0.05 } else { 0.4 }
+                centre[d]
+                    + rand::Rng::gen_range(&mut rng, -1.0..1.0) * if d < 3 { 0.05 } else { 0.4 }
             });
             let v = objective.log_value(&p);
             if v <= best_sample || p[2] < options.z_min_m {

@@ -106,8 +106,12 @@ impl Reachability for Robot {
         let mut nearest: Option<IkSolution> = None;
         for seed in seeds {
             let local = self.ik.solve_from(palm, seed);
-            if local.converged(self.ik.options()) && self.collision_at(&local.joints, hand).is_none() {
-                return Robot::reach(self, palm, hand, &[local.joints]).ok().map(|s| (*palm, s));
+            if local.converged(self.ik.options())
+                && self.collision_at(&local.joints, hand).is_none()
+            {
+                return Robot::reach(self, palm, hand, &[local.joints])
+                    .ok()
+                    .map(|s| (*palm, s));
             }
             let error = |s: &IkSolution| s.pos_err_m + w * s.rot_err_rad;
             if nearest.is_none_or(|n| error(&local) < error(&n)) {
@@ -119,7 +123,9 @@ impl Reachability for Robot {
             return None;
         }
         let pose = self.arm().palm(&attempt.joints);
-        Robot::reach(self, &pose, hand, &[attempt.joints]).ok().map(|s| (pose, s))
+        Robot::reach(self, &pose, hand, &[attempt.joints])
+            .ok()
+            .map(|s| (pose, s))
     }
 
     /// The arm's own projection of the pose onto what it can reach: IK from every seed
@@ -145,4 +151,3 @@ impl Reachability for Robot {
         })
     }
 }
-
