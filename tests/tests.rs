@@ -10,6 +10,7 @@ mod fri;
 mod grasp;
 mod ipc;
 mod objects;
+mod plan;
 mod quality;
 mod shipped_files;
 mod trial;

@@ -89,19 +89,6 @@ pub struct Breakdown {
     pub per_grasp_log: Vec<(usize, f64)>,
 }
 
-impl Breakdown {
-    /// The grasp whose term is the largest (the first among equals).
-    pub fn dominant_grasp(&self) -> usize {
-        let mut best = self.per_grasp_log[0];
-        for &g in &self.per_grasp_log[1..] {
-            if g.1 > best.1 {
-                best = g;
-            }
-        }
-        best.0
-    }
-}
-
 /// Fails with a message naming `what` unless `value` is finite and `>= 0` (or `> 0`).
 pub(crate) fn check_value(
     what: &str,

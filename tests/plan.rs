@@ -1,0 +1,226 @@
+//! `cell plan` end to end over fits and grasps files, and the errors of bad input:
+//! NaN in the fits, a task without grasps, an empty database, unknown models.
+
+use clap::Parser;
+use graspcell::cli::{run, Cli};
+use graspcell::geometry::pose_from_params;
+use graspcell::plan::input::{read_fits, read_grasps, FitJson, FitsFile, GraspJson, GraspsFile};
+use graspcell::plan::synthetic::{synthetic_problem, SyntheticSpec};
+use graspcell::plan::{plan, ExampleGrasp, Kernel, ModelFit, PlanError, PlanOptions};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// A fresh directory for one test; the test removes it.
+fn temp_dir(name: &str) -> PathBuf {
+    static COUNTER: AtomicUsize = AtomicUsize::new(0);
+    let dir = std::env::temp_dir().join(format!(
+        "graspcell-plan-{name}-{}-{}",
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::SeqCst)
+    ));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn config() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("robot/cell.toml")
+        .to_string_lossy()
+        .into_owned()
+}
+
+fn problem() -> (Vec<ModelFit>, Vec<ExampleGrasp>) {
+    synthetic_problem(&SyntheticSpec {
+        models: 3,
+        grasps_per_model: 2,
+        object_xy_m: [0.6, 0.0],
+        seed: 5,
+    })
+}
+
+/// Writes the fits and grasps files; returns their paths.
+fn write_files(dir: &Path, fits: &[ModelFit], grasps: &[ExampleGrasp]) -> (PathBuf, PathBuf) {
+    let fits_file = FitsFile {
+        fits: fits.iter().map(FitJson::from_fit).collect(),
+    };
+    let grasps_file = GraspsFile {
+        grasps: grasps
+            .iter()
+            .map(|g| GraspJson::from_grasp(g, fits))
+            .collect(),
+    };
+    let (f, g) = (dir.join("fits.json"), dir.join("grasps.json"));
+    std::fs::write(&f, serde_json::to_string_pretty(&fits_file).unwrap()).unwrap();
+    std::fs::write(&g, serde_json::to_string_pretty(&grasps_file).unwrap()).unwrap();
+    (f, g)
+}
+
+fn cell_plan(fits: &Path, grasps: &Path, task: &str, extra: &[&str]) -> anyhow::Result<()> {
+    let config = config();
+    let mut argv = vec![
+        "cell",
+        "--config",
+        &config,
+        "plan",
+        "--fits",
+        fits.to_str().unwrap(),
+        "--grasps",
+        grasps.to_str().unwrap(),
+        "--task",
+        task,
+    ];
+    argv.extend_from_slice(extra);
+    run(Cli::try_parse_from(argv)?).map(|_| ())
+}
+
+#[test]
+fn files_round_trip_and_plan_the_same() {
+    let dir = temp_dir("round-trip");
+    let (fits, grasps) = problem();
+    let (f, g) = write_files(&dir, &fits, &grasps);
+    let fits_back = read_fits(&f).unwrap();
+    let grasps_back = read_grasps(&g, &fits_back).unwrap();
+    assert_eq!(fits_back.len(), fits.len());
+    assert_eq!(grasps_back.len(), grasps.len());
+    // serde_json's default float parsing may differ in the last bit.
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-15 * a.abs().max(b.abs());
+    for (a, b) in fits.iter().zip(&fits_back) {
+        assert_eq!(a.name, b.name);
+        assert!(close(a.eps_m2, b.eps_m2) && close(a.sigma_m2, b.sigma_m2));
+        let (dp, dr) = graspcell::geometry::pose_error(&a.base_from_model, &b.base_from_model);
+        assert!(dp < 1e-12 && dr < 1e-9);
+    }
+    for (a, b) in grasps.iter().zip(&grasps_back) {
+        assert_eq!((a.model, &a.task), (b.model, &b.task));
+        assert!(close(a.q, b.q) && (0..6).all(|d| close(a.sigma[d], b.sigma[d])));
+        let (dp, dr) = graspcell::geometry::pose_error(
+            &pose_from_params(&a.model_from_palm),
+            &pose_from_params(&b.model_from_palm),
+        );
+        assert!(dp < 1e-12 && dr < 1e-9);
+    }
+    // The plan from the files is the plan from the values (the representation of the
+    // angles may differ; the objective canonicalises them).
+    let options = PlanOptions {
+        parallel: false,
+        ..PlanOptions::with_kernel(Kernel::LAPLACE_DEFAULT)
+    };
+    let a = plan(&fits, &grasps, "top", &options, None).unwrap();
+    let b = plan(&fits_back, &grasps_back, "top", &options, None).unwrap();
+    assert!((a.plan.grasp.log_objective - b.plan.grasp.log_objective).abs() < 1e-9);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn cli_plans_with_each_kernel_and_the_robot() {
+    let dir = temp_dir("cli");
+    let (fits, grasps) = problem();
+    let (f, g) = write_files(&dir, &fits, &grasps);
+    cell_plan(&f, &g, "top", &["--json"]).unwrap();
+    cell_plan(
+        &f,
+        &g,
+        "top",
+        &["--kernel", "gaussian-r", "--paper-scale", "50"],
+    )
+    .unwrap();
+    cell_plan(
+        &f,
+        &g,
+        "side",
+        &["--kernel", "gaussian", "--no-reach", "--serial"],
+    )
+    .unwrap();
+    let err = Cli::try_parse_from([
+        "cell", "plan", "--fits", "a", "--grasps", "b", "--task", "top", "--kernel", "cauchy",
+    ])
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("cauchy"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_input_gives_one_clear_error() {
+    let dir = temp_dir("bad");
+    let (fits, grasps) = problem();
+    let (f, g) = write_files(&dir, &fits, &grasps);
+    let error = |fits: &Path, grasps: &Path, task: &str| {
+        format!(
+            "{:#}",
+            cell_plan(fits, grasps, task, &["--no-reach"]).unwrap_err()
+        )
+    };
+
+    // A task without grasps names the task and the tasks there are.
+    let err = error(&f, &g, "handle");
+    assert!(
+        err.contains("\"handle\"") && err.contains("side, top"),
+        "{err}"
+    );
+
+    // NaN in the fits (JSON writers print NaN as null).
+    let text = std::fs::read_to_string(&f).unwrap();
+    let eps = format!(
+        "\"eps_m2\": {}",
+        serde_json::to_string(&fits[1].eps_m2).unwrap()
+    );
+    assert!(text.contains(&eps), "{text}");
+    let nan = dir.join("nan.json");
+    std::fs::write(&nan, text.replacen(&eps, "\"eps_m2\": null", 1)).unwrap();
+    let err = error(&nan, &g, "top");
+    assert!(
+        err.contains("nan.json") && err.contains("fit 1 (model_001) eps_m2") && err.contains("NaN"),
+        "{err}"
+    );
+
+    // An empty database: no fits, or no grasps.
+    let empty = dir.join("empty_fits.json");
+    std::fs::write(&empty, r#"{"fits": []}"#).unwrap();
+    let err = error(&empty, &g, "top");
+    assert!(
+        err.contains("empty_fits.json") && err.contains("no fits"),
+        "{err}"
+    );
+    let empty = dir.join("empty_grasps.json");
+    std::fs::write(&empty, r#"{"grasps": []}"#).unwrap();
+    let err = error(&f, &empty, "top");
+    assert!(
+        err.contains("empty_grasps.json") && err.contains("no grasps"),
+        "{err}"
+    );
+
+    // A grasp of a model without a fit; a malformed file; a missing file.
+    let text = std::fs::read_to_string(&g).unwrap();
+    let unknown = dir.join("unknown.json");
+    std::fs::write(&unknown, text.replacen("model_002", "model_009", 1)).unwrap();
+    let err = error(&f, &unknown, "top");
+    assert!(
+        err.contains("unknown.json") && err.contains("model_009"),
+        "{err}"
+    );
+    let broken = dir.join("broken.json");
+    std::fs::write(&broken, &text[..text.len() / 2]).unwrap();
+    let err = error(&f, &broken, "top");
+    assert!(err.contains("broken.json") && err.contains("line"), "{err}");
+    let err = error(&dir.join("missing.json"), &g, "top");
+    assert!(err.contains("missing.json"), "{err}");
+
+    // A negative sigma, caught by the library too.
+    let mut bad = grasps.clone();
+    bad[0].sigma[2] = -0.01;
+    let err = plan(
+        &fits,
+        &bad,
+        "top",
+        &PlanOptions::with_kernel(Kernel::Gaussian),
+        None,
+    )
+    .unwrap_err();
+    assert!(matches!(err, PlanError::BadValue { .. }));
+    assert!(
+        err.to_string().contains("grasp 0") && err.to_string().contains("sigma[2]"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
