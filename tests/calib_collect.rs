@@ -450,7 +450,7 @@ fn cli_collect_solve_and_load_the_mount() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// Hardware backends are refused with what to change; nothing is written.
+/// Backends other than the simulation are refused with what to change; nothing is written.
 #[test]
 fn cli_collect_refuses_hardware_backends() {
     let dir = temp_dir("hw");
