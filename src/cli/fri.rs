@@ -143,7 +143,8 @@ fn run_bench(config_path: &Path, args: &FriBenchArgs) -> anyhow::Result<FriBench
         SimConfig {
             cycle_s,
             record_latencies: true,
-            ..SimConfig::default()
+            // The robot enforces the URDF's joint limits.
+            ..SimConfig::from_robot(&crate::robot::Robot::load(&cell)?)
         },
         "127.0.0.1:0".parse()?,
         driver.local_addr(),
