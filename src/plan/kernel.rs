@@ -59,16 +59,11 @@ impl KernelTerm {
     /// `ln P(d)`.
     #[inline]
     pub fn log_density(&self, d: &[f64; 6]) -> f64 {
-        let mut e = 0.0;
-        if self.absolute {
-            for (c, di) in self.coef.iter().zip(d) {
-                e += c * di.abs();
-            }
+        let e: f64 = if self.absolute {
+            self.coef.iter().zip(d).map(|(c, d)| c * d.abs()).sum()
         } else {
-            for (c, di) in self.coef.iter().zip(d) {
-                e += c * di * di;
-            }
-        }
+            self.coef.iter().zip(d).map(|(c, d)| c * d * d).sum()
+        };
         self.log_norm - e
     }
 }

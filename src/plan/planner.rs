@@ -18,16 +18,20 @@
 //! 2. Otherwise record it as the unconstrained optimum and look for reachable points
 //!    (at most `feasibility_budget` full checks, until `constrained_starts` are found):
 //!    the reachability's own projection of the optimum and of its pre-grasp (for the
-//!    robot: where its best IK attempt puts the palm), the other optima and the starts (best objective first), probes from the
-//!    optimum along each parameter axis (1, 3, 9, 27 cm or 0.1, 0.3, 0.9, 2.7 rad,
-//!    nearest first), and the runs' intermediate best points; plus the last reachable
-//!    point on the segment from the best of those toward the unconstrained optimum
-//!    (bisection).
-//! 3. From the best `constrained_starts` of them, run Nelder–Mead on `-ln f` with
-//!    `+inf` at unreachable poses — a barrier that no reachable point can lose to —
-//!    restarted from its result while it still gains. In this loop reachability is
-//!    the quick check from nearby configurations ([`Reachability::reach_near`]),
-//!    conservative, so the result is reachable; it is confirmed by the full check.
+//!    robot: the collision-free IK attempt nearest the pose), the other optima and
+//!    the starts (best objective first), probes from the optimum along each parameter
+//!    axis (1, 3, 9, 27 cm or 0.1, 0.3, 0.9, 2.7 rad, nearest first), and the runs'
+//!    intermediate best points; plus the last reachable point on the segment from the
+//!    best of those toward the unconstrained optimum (bisection).
+//! 3. From each of them, a constrained Nelder–Mead run (1 mm / 1e-3 tolerances,
+//!    restarted from its result while it still gains): every evaluation *repairs* the
+//!    candidate into a reachable pose near it ([`Reachability::repair_near`]; for the
+//!    robot, local IK from nearby configurations, the pose it reaches when it cannot
+//!    reach the candidate), scores the repaired pose's `-ln f` plus its distance to
+//!    the candidate, and is `+inf` when nothing reachable is found — so an unreachable
+//!    pose never scores, and the search slides along the boundary instead of stalling
+//!    on it. The best repaired pose is the answer, confirmed by the full check and
+//!    reported with the unconstrained optimum it replaces.
 //!
 //! The hand is open with the spread of the **dominant grasp** — the example grasp
 //! whose term of eq. 2 is largest at the pose — at both the grasp and the pre-grasp.
@@ -578,7 +582,7 @@ pub fn plan(
     let plan = GraspPlan {
         task: task.to_string(),
         kernel: options.kernel,
-        dominant_grasp: breakdown.dominant_grasp(),
+        dominant_grasp: problem.objective.dominant_grasp(&p),
         per_model_contribution: breakdown.per_model_log.iter().map(|l| l.exp()).collect(),
         grasp,
         reachability_checked: reach.is_some(),
@@ -701,7 +705,7 @@ fn best_reachable(
     // The last reachable point on the way from the best reachable one to the optimum
     // (angles unwrapped toward the reachable point).
     let mut target = optimum.x;
-    for (t, f) in target.iter_mut().zip(first.x.iter()).take(6).skip(3) {
+    for (t, f) in target.iter_mut().zip(&first.x).skip(3) {
         *t = f + wrap_angle(*t - f);
     }
     let (mut lo, mut hi) = (0.0, 1.0);
@@ -1076,6 +1080,19 @@ mod tests {
         );
         let c = &out.plan.per_model_contribution;
         assert!((c[0] / c[1] - 1.0).abs() < 1e-2, "{c:?}");
+    }
+
+    #[test]
+    fn parallel_and_serial_plans_are_identical() {
+        let (fits, grasps) = grid_database();
+        let region = Region(|p: &Pose| p.translation.x <= 0.605);
+        for reach in [None, Some(&region as &dyn Reachability)] {
+            let mut options = PlanOptions::with_kernel(Kernel::GAUSSIAN_R_DEFAULT);
+            let a = plan(&fits, &grasps, "top", &options, reach).unwrap();
+            options.parallel = false;
+            let b = plan(&fits, &grasps, "top", &options, reach).unwrap();
+            assert_eq!(a, b);
+        }
     }
 
     #[test]
