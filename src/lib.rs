@@ -13,6 +13,7 @@ pub mod cli;
 pub mod clock;
 pub mod cloud;
 pub mod config;
+pub mod eval;
 pub mod execute;
 pub mod fsio;
 pub mod geometry;

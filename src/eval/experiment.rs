@@ -1,0 +1,407 @@
+//! One target of an experiment, end to end: place the test object, see it (complete
+//! or partial view), register the training models to the view, plan each task with
+//! each kernel and take the best-single baseline, and run every grasp in the grasp
+//! simulator on the test object at its true pose.
+//!
+//! Shared by the leave-one-out ([`super::loo`]) and cross-category
+//! ([`super::cross`]) experiments, which differ only in where the test objects and
+//! the training models come from.
+
+use super::compare::{verdict, Verdict};
+use super::outcome::{simulate, SimSetup, SimulatedGrasp, TestObject};
+use super::view::{complete_view, partial_view, PlacementRegion, ViewKind};
+use super::EvalError;
+use crate::category::CategoryDb;
+use crate::cloud::PointCloud;
+use crate::geometry::PoseJson;
+use crate::mesh::procedural::instance_seed;
+use crate::plan::{plan, Kernel, ModelFit, PlanError, PlanOptions, PlannedGrasp, Reachability};
+use crate::quality::autograsp::GraspObject;
+use crate::robot::hand::HandModel;
+use crate::sim::camera::DepthCamera;
+use crate::sim::scene::TableBox;
+use serde::Serialize;
+
+/// Registration of a target cloud against a category's training models.
+pub trait Registrar: Sync {
+    /// The fits of every training model except the one named `exclude` (the held-out
+    /// model of leave-one-out) to `target_base` (base frame), with randomness from
+    /// `seed`; models that fail to register are left out. `Err` describes a failure of
+    /// the whole registration.
+    fn fits(
+        &self,
+        target_base: &PointCloud,
+        exclude: Option<&str>,
+        seed: u64,
+    ) -> Result<Vec<ModelFit>, String>;
+}
+
+/// Everything an experiment needs besides the databases and the registration.
+#[derive(Clone, Copy)]
+pub struct Setup<'a> {
+    /// The hand, for the grasp simulator.
+    pub hand: &'a HandModel,
+    /// The sim camera (partial views).
+    pub camera: DepthCamera,
+    /// The table (partial views; its height also bounds the palm).
+    pub table: TableBox,
+    /// Where test objects are placed.
+    pub region: PlacementRegion,
+    /// Complete or partial views.
+    pub view: ViewKind,
+    /// Points of a complete view.
+    pub complete_points: usize,
+    /// Planner options; the kernel is replaced by each of the experiment's kernels.
+    pub plan: PlanOptions,
+    /// Arm reachability of the grasps (`None`: only the table bound, as the paper's
+    /// simulation).
+    pub reach: Option<&'a dyn Reachability>,
+    /// Epsilon difference under which two grasps count as equal.
+    pub equal_tolerance: f64,
+    /// Seed of placements, views and registration.
+    pub seed: u64,
+}
+
+impl Setup<'_> {
+    /// Checks the numeric options.
+    pub fn validate(&self) -> Result<(), EvalError> {
+        let bad = |what: &str, value: f64, problem: &'static str| {
+            Err(EvalError::Option {
+                what: what.to_string(),
+                value,
+                problem,
+            })
+        };
+        if !(self.equal_tolerance.is_finite() && self.equal_tolerance >= 0.0) {
+            return bad(
+                "equal tolerance",
+                self.equal_tolerance,
+                "must be finite and >= 0",
+            );
+        }
+        if self.view == ViewKind::Complete && self.complete_points == 0 {
+            return bad("complete-view points", 0.0, "must be > 0");
+        }
+        let [hx, hy] = self.region.half_extent_xy_m;
+        if !(hx.is_finite() && hy.is_finite() && hx >= 0.0 && hy >= 0.0) {
+            return bad(
+                "placement half extent (m)",
+                hx.min(hy),
+                "must be finite and >= 0",
+            );
+        }
+        Ok(())
+    }
+}
+
+/// One task, kernel and target: our grasp and best single, simulated.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunRecord {
+    /// The test object.
+    pub target: String,
+    /// The task.
+    pub task: String,
+    /// The kernel's name.
+    pub kernel: &'static str,
+    /// Epsilon of our grasp on the test object.
+    pub epsilon: f64,
+    /// Epsilon of the best-single grasp.
+    pub epsilon_single: f64,
+    /// Ours against best single.
+    pub verdict: Verdict,
+    /// Our grasp, simulated.
+    pub ours: SimulatedGrasp,
+    /// Best single, simulated.
+    pub single: SimulatedGrasp,
+    /// Our palm pose (base frame).
+    pub pose: PoseJson,
+    /// Our hand spread (rad).
+    pub spread_rad: f64,
+    /// Best single's palm pose (base frame).
+    pub single_pose: PoseJson,
+    /// Best single's hand spread (rad).
+    pub single_spread_rad: f64,
+    /// The model best single took its grasp from.
+    pub best_single_model: String,
+    /// The objective of eq. 2 at our grasp.
+    pub objective: f64,
+    /// Whether our grasp is reachable (`None`: not checked).
+    pub reachable: Option<bool>,
+    /// Whether best single is reachable (`None`: not checked).
+    pub single_reachable: Option<bool>,
+}
+
+/// A task (or a whole target) that could not be run, and why.
+#[derive(Debug, Clone, Serialize)]
+pub struct Skipped {
+    /// The test object.
+    pub target: String,
+    /// The task (`None`: every task of the target).
+    pub task: Option<String>,
+    /// Why (e.g. the registration failed).
+    pub reason: String,
+}
+
+/// The fit of one training model to a target, as reported.
+#[derive(Debug, Clone, Serialize)]
+pub struct FitSummary {
+    /// The model.
+    pub model: String,
+    /// Fitting error (m^2).
+    pub eps_m2: f64,
+    /// Standard deviation of the squared distances (m^2).
+    pub sigma_m2: f64,
+}
+
+/// Everything that happened to one target.
+#[derive(Debug, Clone, Serialize)]
+pub struct TargetReport {
+    /// The test object.
+    pub target: String,
+    /// Its true pose.
+    pub base_from_object: PoseJson,
+    /// Points of its view.
+    pub view_points: usize,
+    /// The registered training models.
+    pub fits: Vec<FitSummary>,
+    /// One record per task and kernel that ran.
+    pub runs: Vec<RunRecord>,
+    /// What could not run.
+    pub skipped: Vec<Skipped>,
+}
+
+/// A test object: its database and index there.
+#[derive(Clone, Copy)]
+pub struct Target<'a> {
+    /// The database holding the test object's mesh.
+    pub db: &'a CategoryDb,
+    /// Index of the model in that database.
+    pub index: usize,
+    /// Position in the experiment (seeds derive from it).
+    pub ordinal: u64,
+}
+
+/// Seeds of one target: placement, view noise, registration.
+fn seeds(seed: u64, ordinal: u64) -> [u64; 3] {
+    [0, 1, 2].map(|k| instance_seed(seed, ordinal * 3 + k))
+}
+
+fn is_skippable(e: &PlanError) -> bool {
+    matches!(
+        e,
+        PlanError::NoFits | PlanError::NoGraspsForTask { .. } | PlanError::ZeroWeight { .. }
+    )
+}
+
+/// Runs one target: `train` holds the training models and their grasps (`exclude`
+/// names a model of `train` left out, the target itself in leave-one-out).
+#[allow(clippy::too_many_arguments)]
+pub fn run_target(
+    setup: &Setup,
+    target: Target,
+    train: &CategoryDb,
+    exclude: Option<&str>,
+    tasks: &[String],
+    kernels: &[Kernel],
+    registrar: &dyn Registrar,
+) -> Result<TargetReport, EvalError> {
+    let entry = &target.db.file.models[target.index];
+    let name = entry.name.clone();
+    let mesh = &target.db.meshes[target.index];
+    let [placement_seed, view_seed, register_seed] = seeds(setup.seed, target.ordinal);
+    let base_from_object = setup.region.place(mesh, placement_seed);
+    let mut report = TargetReport {
+        target: name.clone(),
+        base_from_object: PoseJson::from(&base_from_object),
+        view_points: 0,
+        fits: Vec::new(),
+        runs: Vec::new(),
+        skipped: Vec::new(),
+    };
+    let skip_all = |report: &mut TargetReport, reason: String| {
+        report.skipped.push(Skipped {
+            target: name.clone(),
+            task: None,
+            reason,
+        });
+    };
+    let view = match setup.view {
+        ViewKind::Complete => complete_view(
+            &name,
+            mesh,
+            &base_from_object,
+            setup.complete_points,
+            view_seed,
+        ),
+        ViewKind::Partial => partial_view(
+            &name,
+            mesh,
+            &base_from_object,
+            &setup.camera,
+            setup.table,
+            view_seed,
+        ),
+    };
+    let cloud = match view {
+        Ok(c) => c,
+        Err(e) => {
+            skip_all(&mut report, e.to_string());
+            return Ok(report);
+        }
+    };
+    report.view_points = cloud.len();
+    let fits = match registrar.fits(&cloud, exclude, register_seed) {
+        Ok(f) if f.is_empty() => {
+            skip_all(&mut report, "registration: no model registered".into());
+            return Ok(report);
+        }
+        Ok(f) => f,
+        Err(e) => {
+            skip_all(&mut report, format!("registration: {e}"));
+            return Ok(report);
+        }
+    };
+    report.fits = fits
+        .iter()
+        .map(|f| FitSummary {
+            model: f.name.clone(),
+            eps_m2: f.eps_m2,
+            sigma_m2: f.sigma_m2,
+        })
+        .collect();
+
+    let path = target.db.dir.join(&entry.mesh);
+    let object = GraspObject::new(mesh, &path)
+        .map_err(|source| EvalError::Simulation {
+            target: name.clone(),
+            source,
+        })?
+        .with_table(
+            target
+                .db
+                .file
+                .table_height_m
+                .map(|_| setup.region.table_height_m - base_from_object.translation.vector.z),
+        );
+    let test = TestObject {
+        name: name.clone(),
+        object,
+        base_from_object,
+    };
+    let sim = SimSetup {
+        closing: train.file.simulation.into(),
+        metric: train.file.metric.params(),
+        max_retreat_m: train.file.stability.retreat_m,
+    };
+    let run_sim = |g: &PlannedGrasp| {
+        simulate(setup.hand, &test, &g.pose, g.spread_rad, &sim).map_err(|source| {
+            EvalError::Simulation {
+                target: name.clone(),
+                source,
+            }
+        })
+    };
+    for task in tasks {
+        let grasps = match example_grasps(train, &fits, task) {
+            Ok(g) => g,
+            Err(e) if is_skippable(&e) => {
+                report.skipped.push(Skipped {
+                    target: name.clone(),
+                    task: Some(task.clone()),
+                    reason: e.to_string(),
+                });
+                continue;
+            }
+            Err(source) => {
+                return Err(EvalError::Plan {
+                    target: name.clone(),
+                    task: task.clone(),
+                    kernel: "-",
+                    source,
+                })
+            }
+        };
+        let mut single: Option<SimulatedGrasp> = None;
+        for kernel in kernels {
+            let options = PlanOptions {
+                kernel: *kernel,
+                parallel: false,
+                ..setup.plan
+            };
+            let outcome = match plan(&fits, &grasps, task, &options, setup.reach) {
+                Ok(o) => o,
+                Err(e) if is_skippable(&e) => {
+                    report.skipped.push(Skipped {
+                        target: name.clone(),
+                        task: Some(task.clone()),
+                        reason: e.to_string(),
+                    });
+                    break;
+                }
+                Err(source) => {
+                    return Err(EvalError::Plan {
+                        target: name.clone(),
+                        task: task.clone(),
+                        kernel: kernel.name(),
+                        source,
+                    })
+                }
+            };
+            let ours = run_sim(&outcome.plan.grasp)?;
+            // Best single does not depend on the kernel: simulate it once per task.
+            let single = match single {
+                Some(s) => s,
+                None => *single.insert(run_sim(&outcome.best_single.grasp)?),
+            };
+            let checked = outcome.plan.reachability_checked;
+            report.runs.push(RunRecord {
+                target: name.clone(),
+                task: task.clone(),
+                kernel: kernel.name(),
+                epsilon: ours.epsilon,
+                epsilon_single: single.epsilon,
+                verdict: verdict(ours.epsilon, single.epsilon, setup.equal_tolerance),
+                ours,
+                single,
+                pose: PoseJson::from(&outcome.plan.grasp.pose),
+                spread_rad: outcome.plan.grasp.spread_rad,
+                single_pose: PoseJson::from(&outcome.best_single.grasp.pose),
+                single_spread_rad: outcome.best_single.grasp.spread_rad,
+                best_single_model: outcome.best_single.model_name.clone(),
+                objective: outcome.plan.grasp.objective,
+                reachable: checked.then_some(outcome.plan.grasp.reachable),
+                single_reachable: checked.then_some(outcome.best_single.grasp.reachable),
+            });
+        }
+    }
+    Ok(report)
+}
+
+// TEMPORARY until plan::category lands on main.
+fn example_grasps(
+    db: &CategoryDb,
+    fits: &[ModelFit],
+    task: &str,
+) -> Result<Vec<crate::plan::ExampleGrasp>, PlanError> {
+    let out: Vec<_> = db
+        .grasps_for(task)
+        .filter_map(|g| {
+            let model = fits.iter().position(|f| f.name == g.model)?;
+            Some(crate::plan::ExampleGrasp {
+                model,
+                task: g.task.clone(),
+                model_from_palm: g.params(),
+                spread_rad: g.spread_rad,
+                q: g.q,
+                sigma: g.sigma,
+            })
+        })
+        .collect();
+    if out.is_empty() {
+        return Err(PlanError::NoGraspsForTask {
+            task: task.into(),
+            available: String::new(),
+        });
+    }
+    Ok(out)
+}

@@ -1,0 +1,54 @@
+//! The category's registration ([`crate::register`]) as the experiments'
+//! [`Registrar`]: the models are prepared once, and leave-one-out drops the held-out
+//! model from the set for its own target.
+
+use super::experiment::Registrar;
+use crate::category::CategoryDb;
+use crate::cloud::PointCloud;
+use crate::plan::ModelFit;
+use crate::register::{register_all, ModelSet, RegisterError, RegisterParams};
+
+/// Registration against the models of one category database.
+#[derive(Debug, Clone)]
+pub struct CategoryRegistrar {
+    set: ModelSet,
+    params: RegisterParams,
+}
+
+impl CategoryRegistrar {
+    /// Prepares the models of `db` with the default registration parameters; with
+    /// `viewpoint_m` (the camera's position, base frame) target normals are oriented
+    /// towards it, as for a partial view.
+    pub fn new(
+        db: &CategoryDb,
+        viewpoint_m: Option<[f64; 3]>,
+    ) -> Result<CategoryRegistrar, RegisterError> {
+        let params = RegisterParams {
+            viewpoint_m,
+            ..RegisterParams::default()
+        };
+        let set = ModelSet::from_category(db, &params)?;
+        Ok(CategoryRegistrar { set, params })
+    }
+}
+
+impl Registrar for CategoryRegistrar {
+    fn fits(
+        &self,
+        target_base: &PointCloud,
+        exclude: Option<&str>,
+        seed: u64,
+    ) -> Result<Vec<ModelFit>, String> {
+        let without;
+        let set = match exclude {
+            Some(name) => {
+                without = self.set.without(name);
+                &without
+            }
+            None => &self.set,
+        };
+        let registrations =
+            register_all(target_base, set, &self.params, seed).map_err(|e| e.to_string())?;
+        Ok(registrations.iter().filter_map(|r| r.fit()).collect())
+    }
+}
