@@ -23,6 +23,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 pub use output::emit;
+pub use output::{error_chain, write_stdout};
 
 /// Controller for the graspcell grasping cell (KUKA LBR4+, Barrett BH8-282, RGB-D camera).
 #[derive(Debug, Parser)]
@@ -86,7 +87,7 @@ pub fn main() -> ExitCode {
     match run(cli) {
         Ok(code) => code,
         Err(err) => {
-            eprintln!("error: {err:#}");
+            eprintln!("error: {}", error_chain(&err));
             ExitCode::FAILURE
         }
     }
@@ -99,7 +100,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Ik(args) => robot::ik(&cli.config, args),
         Command::PrintConfig => {
             let config = crate::config::CellConfig::load(&cli.config)?;
-            print!("{}", toml::to_string_pretty(&config)?);
+            write_stdout(&toml::to_string_pretty(&config)?)?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Grade(args) => trial::grade(args),

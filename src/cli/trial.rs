@@ -224,7 +224,7 @@ pub fn log(which: LogCommand) -> anyhow::Result<ExitCode> {
                     crate::trial::write_atomically(path, csv.as_bytes())?;
                     eprintln!("wrote {} trials to {}", log.trial_count()?, path.display());
                 }
-                None => print!("{csv}"),
+                None => super::write_stdout(&csv)?,
             }
         }
     }
