@@ -5,6 +5,7 @@ mod calib_collect;
 mod camera;
 mod can;
 mod category;
+mod cell;
 mod execute;
 mod fri;
 mod grasp;
