@@ -224,3 +224,78 @@ fn bad_input_gives_one_clear_error() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `cell plan --db`: the shipped mug database, every model registered at the same pose
+/// (within comfortable reach, handle turned away from the far side), plans a reachable
+/// handle grasp; an unknown task names the tasks.
+#[test]
+fn plans_from_the_shipped_category_database() {
+    let dir = temp_dir("db");
+    let db_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug");
+    let db = graspcell::category::CategoryDb::load(&db_dir).unwrap();
+    let fits: Vec<ModelFit> = db
+        .file
+        .models
+        .iter()
+        .enumerate()
+        .map(|(i, m)| ModelFit {
+            name: m.name.clone(),
+            base_from_model: pose_from_params(&[0.5, 0.0, 0.0, 0.0, 0.0, 2.0]),
+            eps_m2: 1e-5 * (1 + i) as f64,
+            sigma_m2: 2e-6,
+        })
+        .collect();
+    let fits_file = FitsFile {
+        fits: fits.iter().map(FitJson::from_fit).collect(),
+    };
+    let f = dir.join("fits.json");
+    std::fs::write(&f, serde_json::to_string(&fits_file).unwrap()).unwrap();
+    let config = config();
+    let argv = [
+        "cell",
+        "--config",
+        &config,
+        "plan",
+        "--db",
+        db_dir.to_str().unwrap(),
+        "--fits",
+        f.to_str().unwrap(),
+        "--task",
+        "handle",
+    ];
+    run(Cli::try_parse_from(argv).unwrap()).unwrap();
+    // The library path the CLI takes, checked for content.
+    let grasps = graspcell::plan::category::example_grasps(&db, &fits, "handle").unwrap();
+    assert_eq!(grasps.len(), db.grasps_for("handle").count());
+    let cell = graspcell::config::CellConfig::load(Path::new(&config)).unwrap();
+    let robot = graspcell::robot::Robot::load(&cell).unwrap();
+    let outcome = plan(
+        &fits,
+        &grasps,
+        "handle",
+        &PlanOptions::new(Kernel::LAPLACE_DEFAULT, &cell),
+        Some(&robot),
+    )
+    .unwrap();
+    assert!(
+        outcome.plan.grasp.reachable,
+        "{:?}",
+        outcome.plan.grasp.unreachable
+    );
+    assert!(outcome.plan.grasp.objective > 0.0);
+    let argv = [
+        "cell",
+        "--config",
+        &config,
+        "plan",
+        "--db",
+        db_dir.to_str().unwrap(),
+        "--fits",
+        f.to_str().unwrap(),
+        "--task",
+        "pour",
+    ];
+    let e = format!("{:#}", run(Cli::try_parse_from(argv).unwrap()).unwrap_err());
+    assert!(e.contains("pour") && e.contains("handle"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

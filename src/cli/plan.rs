@@ -2,8 +2,10 @@
 
 use super::bench::{median, percentile};
 use super::emit;
+use crate::category::CategoryDb;
 use crate::config::CellConfig;
 use crate::geometry::{params_from_pose, Pose};
+use crate::plan::category::example_grasps;
 use crate::plan::input::{read_fits, read_grasps};
 use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
 use crate::plan::{plan, FitWeight, Kernel, PlanOptions, PlanOutcome, PlannedGrasp, Reachability};
@@ -102,14 +104,21 @@ impl KernelArgs {
 
 /// Options of `cell plan`.
 #[derive(Debug, Args)]
+#[command(group(clap::ArgGroup::new("target").required(true).args(["fits"])))]
+#[command(group(clap::ArgGroup::new("examples").required(true).args(["db", "grasps"])))]
 pub struct PlanArgs {
-    /// Model fits (JSON: {"fits": [{"name", "base_from_model", "eps_m2", "sigma_m2"}]}).
+    /// Model fits (JSON: {"fits": [{"name", "base_from_model", "eps_m2", "sigma_m2"}]};
+    /// `cell register --json` writes the same fields per model).
     #[arg(long)]
-    pub fits: PathBuf,
+    pub fits: Option<PathBuf>,
+    /// Category database directory (e.g. db/mug): the example grasps of the task for
+    /// every model that has a fit.
+    #[arg(long)]
+    pub db: Option<PathBuf>,
     /// Example grasps (JSON: {"grasps": [{"model", "task", "model_from_palm",
-    /// "spread_rad", "q", "sigma_m_rad"}]}); `model` names a fit.
+    /// "spread_rad", "q", "sigma_m_rad"}]}); `model` names a fit. Instead of --db.
     #[arg(long)]
-    pub grasps: PathBuf,
+    pub grasps: Option<PathBuf>,
     /// The task (e.g. top, side, handle, use).
     #[arg(long)]
     pub task: String,
@@ -139,6 +148,7 @@ pub struct PlanArgs {
 #[derive(Serialize)]
 struct PlanReport<'a> {
     fits: &'a Path,
+    /// The grasps file or the category database the example grasps came from.
     grasps: &'a Path,
     options: PlanOptions,
     #[serde(flatten)]
@@ -172,8 +182,18 @@ fn grasp_text(name: &str, g: &PlannedGrasp) -> String {
 /// Runs `cell plan`.
 pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     let cell = CellConfig::load(config)?;
-    let fits = read_fits(&args.fits)?;
-    let grasps = read_grasps(&args.grasps, &fits)?;
+    let fits_path = args.fits.as_deref().expect("clap requires a target");
+    let fits = read_fits(fits_path)?;
+    let (grasps_path, grasps) = match (&args.db, &args.grasps) {
+        (Some(dir), _) => {
+            let db = CategoryDb::load(dir)?;
+            let grasps = example_grasps(&db, &fits, &args.task)
+                .with_context(|| format!("{}: task {:?}", dir.display(), args.task))?;
+            (dir.as_path(), grasps)
+        }
+        (None, Some(file)) => (file.as_path(), read_grasps(file, &fits)?),
+        (None, None) => unreachable!("clap requires --db or --grasps"),
+    };
     let mut options = PlanOptions::new(args.kernel.kernel(), &cell);
     options.weights.lambda_psi = args.lambda_psi;
     options.weights.lambda_eps_per_m2 = args.lambda_eps_per_m2;
@@ -196,8 +216,8 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     )
     .with_context(|| format!("planning task {:?}", args.task))?;
     let report = PlanReport {
-        fits: &args.fits,
-        grasps: &args.grasps,
+        fits: fits_path,
+        grasps: grasps_path,
         options,
         outcome,
     };

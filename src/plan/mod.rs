@@ -17,6 +17,7 @@
 //! the category database can feed it, and an evaluation loop can call
 //! [`planner::plan`] once per held-out model, task and kernel.
 
+pub mod category;
 pub mod input;
 pub mod kernel;
 pub mod nelder_mead;
@@ -82,6 +83,24 @@ pub enum PlanError {
         task: String,
         /// The tasks that do have grasps, comma-separated.
         available: String,
+    },
+    /// A fit names a model the category database does not have.
+    #[error("the fit of model {model:?} names no model of the database {database}")]
+    UnknownModel {
+        /// The fit's model name.
+        model: String,
+        /// The database directory.
+        database: PathBuf,
+    },
+    /// The task has grasps, but none of their models has a fit.
+    #[error(
+        "no model with a grasp for task {task:?} has a fit (registration failed for {models})"
+    )]
+    NoFitForTask {
+        /// The requested task.
+        task: String,
+        /// The models with grasps of the task, comma-separated.
+        models: String,
     },
     /// Every grasp of the task weighs zero (q = 0), so the objective is 0 everywhere.
     #[error("every example grasp of task {task:?} has quality q = 0: nothing to optimise")]
