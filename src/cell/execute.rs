@@ -182,11 +182,14 @@ pub fn run(
     while !stop_requested() {
         watchdog.ping();
         while requests.try_receive()?.is_some() {}
-        joints_pub.send(&JointStates {
-            trial_id: 0,
-            stamp_ns: monotonic_now_ns(),
-            joints: joints_now(&driver),
-        })?;
+        // Only measured joints: none before the robot's first measurement.
+        if driver.status().last_seq.is_some() {
+            joints_pub.send(&JointStates {
+                trial_id: 0,
+                stamp_ns: monotonic_now_ns(),
+                joints: joints_now(&driver),
+            })?;
+        }
         let plan = match plans.receive_timeout(TICK) {
             Ok(Some(plan)) => plan,
             Ok(None) => continue,

@@ -186,12 +186,6 @@ impl Cell {
 
     fn start_all(&mut self) -> Result<(), CellError> {
         if self.options.simulated_devices {
-            let home: Vec<String> = self
-                .options
-                .home_joints_rad
-                .iter()
-                .map(|q| q.to_string())
-                .collect();
             let hand_args = vec![
                 "--interface".to_string(),
                 self.can_interface.clone(),
@@ -220,21 +214,6 @@ impl Cell {
                 child: hand,
                 restarts: 0,
             });
-            let arm_args = vec![
-                "--pc-addr".to_string(),
-                self.fri_addr.clone(),
-                "--config".into(),
-                self.options.stage.config.display().to_string(),
-                "--initial-joints".into(),
-                home.join(","),
-            ];
-            let arm = spawn(&self.options.bin_dir, "cell-sim-arm", &arm_args, false)?;
-            self.sims.push(Process {
-                name: "cell-sim-arm".into(),
-                args: arm_args,
-                child: arm,
-                restarts: 0,
-            });
         }
         for stage in STAGES {
             let args = self.stage_args(stage);
@@ -257,7 +236,33 @@ impl Cell {
             results: node.subscriber::<TrialResult>()?,
             _stage: node,
         });
-        self.wait_ready(STARTUP_TIMEOUT)
+        self.wait_ready(STARTUP_TIMEOUT)?;
+        // The robot simulator last: it drops to monitor mode when its measurements go
+        // unanswered, so the executor's FRI driver must already listen.
+        if self.options.simulated_devices {
+            let home: Vec<String> = self
+                .options
+                .home_joints_rad
+                .iter()
+                .map(|q| q.to_string())
+                .collect();
+            let arm_args = vec![
+                "--pc-addr".to_string(),
+                self.fri_addr.clone(),
+                "--config".into(),
+                self.options.stage.config.display().to_string(),
+                "--initial-joints".into(),
+                home.join(","),
+            ];
+            let arm = spawn(&self.options.bin_dir, "cell-sim-arm", &arm_args, false)?;
+            self.sims.push(Process {
+                name: "cell-sim-arm".into(),
+                args: arm_args,
+                child: arm,
+                restarts: 0,
+            });
+        }
+        Ok(())
     }
 
     fn stage_args(&self, stage: &str) -> Vec<String> {

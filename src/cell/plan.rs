@@ -14,11 +14,12 @@ use crate::category::CategoryDb;
 use crate::config::CellConfig;
 use crate::ipc::Domain;
 use crate::ipc::{
-    monotonic_now_ns, wait_any, FailureCause, FitStatus, Fits, GraspPlan, Stage, TrialRequest,
-    Wakeable,
+    monotonic_now_ns, wait_any, FailureCause, FitStatus, Fits, GraspPlan, JointStates, Stage,
+    TrialRequest, Wakeable,
 };
 use crate::plan::{plan, Kernel, ModelFit, PlanOptions, PlannedGrasp, Reachability};
-use crate::robot::Robot;
+use crate::robot::kinematics::ArmJoints;
+use crate::robot::{HandPose, Robot};
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
@@ -139,7 +140,8 @@ pub fn plan_trial(
             detail: "no model was registered to the object".into(),
         });
     }
-    let grasps = example_grasps(db, &model_fits, task);
+    let grasps = crate::plan::category::example_grasps(db, &model_fits, task)
+        .map_err(|e| other(e.to_string()))?;
     let options = PlanOptions::new(kernel, config);
     let outcome = plan(
         &model_fits,
@@ -165,6 +167,31 @@ pub fn plan_trial(
         });
     }
     Ok(grasp)
+}
+
+/// Re-solves the grasp's inverse kinematics seeded first with `current` (the arm's
+/// joints now): the pre-grasp near the arm, the grasp near the pre-grasp. The
+/// planner only needs some solution to know a pose is reachable, and from its
+/// generic seeds it may find one on another branch (shoulder turned by half a
+/// turn); the executor's joint-space move there would sweep the palm out of the
+/// workspace. Keeps the planner's solutions if these seeds find nothing better.
+pub fn solve_near(robot: &Robot, grasp: &mut PlannedGrasp, current: &ArmJoints) {
+    let hand = HandPose {
+        spread_rad: grasp.spread_rad,
+        flex_rad: [0.0; 3],
+    };
+    let mut seeds = vec![*current];
+    seeds.extend(grasp.pregrasp_joints);
+    let Ok(pre) = robot.reach(&grasp.pregrasp_pose, &hand, &seeds) else {
+        return;
+    };
+    let mut seeds = vec![pre.joints];
+    seeds.extend(grasp.joints);
+    let Ok(at) = robot.reach(&grasp.pose, &hand, &seeds) else {
+        return;
+    };
+    grasp.pregrasp_joints = Some(pre.joints);
+    grasp.joints = Some(at.joints);
 }
 
 /// The message for a planned grasp.
@@ -193,27 +220,6 @@ pub fn plan_message(
     Ok(msg)
 }
 
-// TEMPORARY until plan::category::example_grasps lands on main.
-fn example_grasps(
-    db: &CategoryDb,
-    fits: &[ModelFit],
-    task: &str,
-) -> Vec<crate::plan::ExampleGrasp> {
-    db.grasps_for(task)
-        .filter_map(|g| {
-            let model = fits.iter().position(|f| f.name == g.model)?;
-            Some(crate::plan::ExampleGrasp {
-                model,
-                task: g.task.clone(),
-                model_from_palm: g.params(),
-                spread_rad: g.spread_rad,
-                q: g.q,
-                sigma: g.sigma,
-            })
-        })
-        .collect()
-}
-
 /// Most trials whose request or fits are kept while waiting for the other.
 const PENDING_TRIALS: usize = 16;
 
@@ -224,7 +230,9 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
     let stage = Stage::start(domain, "plan")?;
     let plans = stage.publisher::<GraspPlan>()?;
     let fits_sub = stage.subscriber::<Fits>()?;
+    let joints_sub = stage.subscriber::<JointStates>()?;
     let requests = stage.subscriber::<TrialRequest>()?;
+    let mut arm_now: ArmJoints = super::harness::HOME_JOINTS_RAD;
     notify::ready("plan waiting for fits");
     let mut watchdog = Watchdog::from_env();
     let mut pending_requests: BTreeMap<u64, TrialRequest> = BTreeMap::new();
@@ -243,6 +251,9 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
         while let Some(f) = fits_sub.try_receive()? {
             pending_fits.insert(f.trial_id, f);
         }
+        while let Some(j) = joints_sub.try_receive()? {
+            arm_now = j.joints.arm_rad;
+        }
         let ready: Vec<u64> = pending_fits
             .keys()
             .filter(|id| pending_requests.contains_key(id))
@@ -258,7 +269,10 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
             let method = request.method().unwrap_or("?").to_string();
             let started = std::time::Instant::now();
             let msg = match plan_trial(config, &robot, &mut dbs, &request, &fits) {
-                Ok(grasp) => plan_message(trial_id, &method, &grasp)?,
+                Ok(mut grasp) => {
+                    solve_near(&robot, &mut grasp, &arm_now);
+                    plan_message(trial_id, &method, &grasp)?
+                }
                 Err(failure) => {
                     tracing::warn!(trial_id, cause = ?failure.cause, "no plan: {}", failure.detail);
                     let method = if method.len() <= crate::ipc::NAME_CAPACITY {
