@@ -7,6 +7,7 @@ pub mod bench;
 mod calibrate;
 mod camera;
 mod can;
+mod cell;
 mod execute;
 mod fri;
 pub mod ipc;
@@ -75,6 +76,16 @@ pub enum Command {
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Run the whole simulated cell as processes for N trials on novel objects and
+    /// print a line per trial (grade, cause, snapshot-to-grasp-command time).
+    Demo(cell::DemoArgs),
+    /// Run the cell with the configured backends until Ctrl-C; `cell trial` sends it work.
+    Run(cell::RunArgs),
+    /// Send one trial request to a running cell (`cell run`) and print its result.
+    Trial(cell::TrialArgs),
+    /// The paper's robot protocol in the simulated cell: novel objects x placements x
+    /// methods, paired, graded by the simulated observer, resumable.
+    Campaign(cell::CampaignArgs),
     /// Helper process of tests and benchmarks (internal).
     #[command(hide = true)]
     IpcPeer(ipc::PeerArgs),
@@ -115,6 +126,10 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Train(args) => train::run(&cli.config, args),
         Command::Bench(which) => bench::run(&cli.config, which),
         Command::IpcPeer(args) => ipc::run_peer(args),
+        Command::Demo(args) => cell::demo(&cli.config, args),
+        Command::Run(args) => cell::run(&cli.config, args),
+        Command::Trial(args) => cell::trial(&cli.config, args),
+        Command::Campaign(args) => cell::campaign(&cli.config, args),
     }
 }
 
