@@ -9,6 +9,7 @@
 
 pub mod calib;
 pub mod category;
+pub mod cell;
 pub mod cli;
 pub mod clock;
 pub mod cloud;

@@ -633,3 +633,57 @@ fn cli_renders_a_cloud_and_a_readable_depth_image() {
     assert!(!dir.join("never.ply").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn frames_do_not_depend_on_the_thread_count() {
+    let config = config();
+    let camera = DepthCamera::from_config(&config.camera, config.base_from_camera());
+    let mut scene = Scene::new(Some(TableBox::from(&config.table)));
+    let (mug, _) = generate(Category::Mug, 3);
+    scene
+        .add("mug", mug, Pose::translation(0.65, 0.05, 0.0))
+        .unwrap();
+    let render_on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| camera.render(&scene, 9))
+    };
+    let bits = |f: &DepthFrame| f.depth_m.iter().map(|z| z.to_bits()).collect::<Vec<u32>>();
+    let one = render_on(1);
+    assert!(one.valid_fraction() > 0.5);
+    for threads in [2, 3] {
+        let many = render_on(threads);
+        assert_eq!(bits(&one), bits(&many), "{threads} threads");
+        assert_eq!(one.status, many.status, "{threads} threads");
+        assert_eq!(one.surface, many.surface, "{threads} threads");
+    }
+}
+
+#[test]
+fn bench_render_reports_medians_and_a_one_thread_baseline() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cell"))
+        .arg("--config")
+        .arg(config_path())
+        .args(["bench", "render", "--repeats", "2", "--json"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (v["width_px"].as_u64(), v["height_px"].as_u64()),
+        (Some(640), Some(480))
+    );
+    for key in [
+        "render_ms_median",
+        "render_ms_median_one_thread",
+        "table_only_ms_median",
+    ] {
+        assert!(v[key].as_f64().unwrap() > 0.0, "{key}: {v}");
+    }
+    assert_eq!(v["one_thread_frames_identical"], true, "{v}");
+    assert!(v["object_valid_fraction"].as_f64().unwrap() > 0.001, "{v}");
+    assert_eq!(v["goal_ms"].as_f64(), Some(30.0));
+}

@@ -5,6 +5,8 @@ mod calib_collect;
 mod camera;
 mod can;
 mod category;
+mod cell;
+mod cli_output;
 mod execute;
 mod fri;
 mod grasp;

@@ -58,7 +58,7 @@ fn main() -> ExitCode {
     match run(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("error: {err:#}");
+            eprintln!("error: {}", graspcell::cli::error_chain(&err));
             ExitCode::FAILURE
         }
     }

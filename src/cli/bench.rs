@@ -97,6 +97,20 @@ pub struct QualityMetricBenchArgs {
     pub json: bool,
 }
 
+/// The system's 1, 5 and 15 minute load averages (`/proc/loadavg`), printed with a
+/// benchmark so its figures can be read against how busy the machine was; None
+/// where the file does not exist.
+pub fn load_average() -> Option<[f64; 3]> {
+    parse_load_average(&std::fs::read_to_string("/proc/loadavg").ok()?)
+}
+
+/// The three load averages at the start of a `/proc/loadavg` line.
+fn parse_load_average(text: &str) -> Option<[f64; 3]> {
+    let mut fields = text.split_whitespace().map(str::parse::<f64>);
+    let mut next = || fields.next()?.ok();
+    Some([next()?, next()?, next()?])
+}
+
 /// Runs one benchmark.
 pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
     match which {
@@ -109,5 +123,20 @@ pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Quality(args) => super::quality::bench_grasp(config, args),
         BenchCommand::Ipc(args) => super::ipc::bench_ipc(args),
         BenchCommand::Plan(args) => super::plan::bench(config, args),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn load_average_line_is_parsed_or_refused() {
+        assert_eq!(
+            parse_load_average("2.06 0.95 0.37 3/412 1234\n"),
+            Some([2.06, 0.95, 0.37])
+        );
+        assert_eq!(parse_load_average("2.06 0.95"), None);
+        assert_eq!(parse_load_average("high 0.95 0.37"), None);
     }
 }

@@ -88,7 +88,7 @@ pub fn bench(args: CanBenchArgs) -> anyhow::Result<ExitCode> {
             figures("cross-process (AF_UNIX hub)", &mut cross_process),
         ],
     };
-    println!("{}", serde_json::to_string_pretty(&report)?);
+    super::emit(true, &report, |_| String::new())?;
     Ok(ExitCode::SUCCESS)
 }
 

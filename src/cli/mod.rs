@@ -7,6 +7,7 @@ pub mod bench;
 mod calibrate;
 mod camera;
 mod can;
+mod cell;
 mod execute;
 mod fri;
 pub mod ipc;
@@ -23,6 +24,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 pub use output::emit;
+pub use output::{error_chain, write_stdout};
 
 /// Controller for the graspcell grasping cell (KUKA LBR4+, Barrett BH8-282, RGB-D camera).
 #[derive(Debug, Parser)]
@@ -74,6 +76,16 @@ pub enum Command {
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Run the whole simulated cell as processes for N trials on novel objects and
+    /// print a line per trial (grade, cause, snapshot-to-grasp-command time).
+    Demo(cell::DemoArgs),
+    /// Run the cell with the configured backends until Ctrl-C; `cell trial` sends it work.
+    Run(cell::RunArgs),
+    /// Send one trial request to a running cell (`cell run`) and print its result.
+    Trial(cell::TrialArgs),
+    /// The paper's robot protocol in the simulated cell: novel objects x placements x
+    /// methods, paired, graded by the simulated observer, resumable.
+    Campaign(cell::CampaignArgs),
     /// Helper process of tests and benchmarks (internal).
     #[command(hide = true)]
     IpcPeer(ipc::PeerArgs),
@@ -86,7 +98,7 @@ pub fn main() -> ExitCode {
     match run(cli) {
         Ok(code) => code,
         Err(err) => {
-            eprintln!("error: {err:#}");
+            eprintln!("error: {}", error_chain(&err));
             ExitCode::FAILURE
         }
     }
@@ -99,7 +111,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Ik(args) => robot::ik(&cli.config, args),
         Command::PrintConfig => {
             let config = crate::config::CellConfig::load(&cli.config)?;
-            print!("{}", toml::to_string_pretty(&config)?);
+            write_stdout(&toml::to_string_pretty(&config)?)?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Grade(args) => trial::grade(args),
@@ -114,6 +126,10 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Train(args) => train::run(&cli.config, args),
         Command::Bench(which) => bench::run(&cli.config, which),
         Command::IpcPeer(args) => ipc::run_peer(args),
+        Command::Demo(args) => cell::demo(&cli.config, args),
+        Command::Run(args) => cell::run(&cli.config, args),
+        Command::Trial(args) => cell::trial(&cli.config, args),
+        Command::Campaign(args) => cell::campaign(&cli.config, args),
     }
 }
 

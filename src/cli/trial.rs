@@ -51,6 +51,9 @@ pub struct ReportArgs {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+    /// Also print the failure causes next to the paper's Table 2.
+    #[arg(long)]
+    pub paper: bool,
 }
 
 /// `cell log ...`: grades kept on paper in and out.
@@ -171,6 +174,7 @@ pub fn report(args: ReportArgs) -> anyhow::Result<ExitCode> {
     for c in &charts {
         tracing::info!("wrote {}", c.display());
     }
+    let paper = args.paper;
     let out = ReportOutput {
         log: &args.log,
         report: &report,
@@ -179,6 +183,9 @@ pub fn report(args: ReportArgs) -> anyhow::Result<ExitCode> {
     super::emit(args.json, &out, |o| {
         let mut text = format!("Log: {}\n", o.log.display());
         text.push_str(&o.report.to_text());
+        if paper {
+            text.push_str(&crate::trial::paper::comparison_text(o.report));
+        }
         for c in &o.charts {
             text.push_str(&format!("chart: {}\n", c.display()));
         }
@@ -224,7 +231,7 @@ pub fn log(which: LogCommand) -> anyhow::Result<ExitCode> {
                     crate::trial::write_atomically(path, csv.as_bytes())?;
                     eprintln!("wrote {} trials to {}", log.trial_count()?, path.display());
                 }
-                None => print!("{csv}"),
+                None => super::write_stdout(&csv)?,
             }
         }
     }

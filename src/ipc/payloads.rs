@@ -172,6 +172,8 @@ coded_enum!(
         Timeout = 6,
         /// A device reported a fault.
         HardwareFault = 7,
+        /// The execution went wrong (refused motion, collision, slip, no contact).
+        Execution = 8,
     }
 );
 
@@ -628,8 +630,10 @@ pub struct GraspPlan {
     /// Value of the objective at the grasp (eq. 2 with normalising constants).
     pub objective: f64,
     reachable: u32,
-    reserved: u32,
+    failure: u32,
     method: Name,
+    /// Hand spread of the grasp (rad).
+    pub spread_rad: f64,
 }
 message!(GraspPlan, Topic::GraspPlan);
 
@@ -656,9 +660,32 @@ impl GraspPlan {
             pregrasp_joints_rad,
             objective,
             reachable: reachable as u32,
-            reserved: 0,
+            failure: FailureCause::None.code(),
             method: Name::new("grasp plan method", method)?,
+            spread_rad: 0.0,
         })
+    }
+
+    /// A plan that could not be made, for trial `trial_id`: nothing to execute, and
+    /// why (`cause` is not [`FailureCause::None`]).
+    pub fn failed(
+        trial_id: u64,
+        stamp_ns: u64,
+        cause: FailureCause,
+        method: &str,
+    ) -> Result<GraspPlan, IpcError> {
+        Ok(GraspPlan {
+            trial_id,
+            stamp_ns,
+            failure: cause.code(),
+            method: Name::new("grasp plan method", method)?,
+            ..GraspPlan::default()
+        })
+    }
+
+    /// Why no grasp was planned ([`FailureCause::None`] for a plan to execute).
+    pub fn failure(&self) -> Result<FailureCause, IpcError> {
+        FailureCause::from_code(self.failure)
     }
 
     /// True when inverse kinematics found both joint vectors within limits.
@@ -1056,7 +1083,7 @@ mod tests {
         assert_eq!(size_of::<ModelFit>(), 8 + 128 + 24);
         assert_eq!(size_of::<Fits>(), 24 + 32 * 160);
         assert_eq!(size_of::<JointState>(), 11 * 8);
-        assert_eq!(size_of::<GraspPlan>(), 16 + 256 + 112 + 8 + 8 + 32);
+        assert_eq!(size_of::<GraspPlan>(), 16 + 256 + 112 + 8 + 8 + 32 + 8);
         // The header's stamp sits at byte 8 (the socket benchmark relies on it).
         assert_eq!(std::mem::offset_of!(CloudHeader, stamp_ns), 8);
     }

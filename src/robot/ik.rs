@@ -30,6 +30,9 @@ pub struct IkOptions {
     pub rotation_weight_m: f64,
     /// Largest joint step per iteration (rad).
     pub max_step_rad: f64,
+    /// Solutions stay this far inside the URDF joint limits (rad): more than the
+    /// executor's safety margin (0.01 rad), so every reachable plan is executable.
+    pub limit_margin_rad: f64,
 }
 
 impl Default for IkOptions {
@@ -42,6 +45,7 @@ impl Default for IkOptions {
             max_iterations: 60,
             rotation_weight_m: 0.2,
             max_step_rad: 0.5,
+            limit_margin_rad: 0.02,
         }
     }
 }
@@ -104,7 +108,7 @@ impl IkSolver {
     pub fn seeds<'a>(&'a self, first: &'a [ArmJoints]) -> impl Iterator<Item = ArmJoints> + 'a {
         first
             .iter()
-            .map(|q| self.arm.clamp(q))
+            .map(|q| self.arm.clamp_within(q, self.options.limit_margin_rad))
             .chain(self.spread.iter().copied())
     }
 
@@ -147,7 +151,7 @@ impl IkSolver {
     pub fn solve_from(&self, target: &Pose, seed: &ArmJoints) -> IkSolution {
         let o = &self.options;
         let w = o.rotation_weight_m;
-        let mut q = self.arm.clamp(seed);
+        let mut q = self.arm.clamp_within(seed, self.options.limit_margin_rad);
         let (mut pose, mut jacobian) = self.arm.palm_and_jacobian(&q);
         let mut error = weighted_error(target, &pose, w);
         let mut cost = error.norm_squared();
@@ -183,7 +187,9 @@ impl IkSolver {
                 for i in 0..ARM_DOF {
                     candidate[i] += dq[i];
                 }
-                let candidate = self.arm.clamp(&candidate);
+                let candidate = self
+                    .arm
+                    .clamp_within(&candidate, self.options.limit_margin_rad);
                 let (cpose, cjac) = self.arm.palm_and_jacobian(&candidate);
                 let cerror = weighted_error(target, &cpose, w);
                 let ccost = cerror.norm_squared();

@@ -197,6 +197,16 @@ impl ArmKinematics {
         std::array::from_fn(|i| q[i].clamp(self.lower_rad[i], self.upper_rad[i]))
     }
 
+    /// `q` clamped into the joint limits shrunk by `margin_rad` on each side (at most
+    /// to the middle of the range).
+    pub fn clamp_within(&self, q: &ArmJoints, margin_rad: f64) -> ArmJoints {
+        std::array::from_fn(|i| {
+            let (lo, hi) = (self.lower_rad[i], self.upper_rad[i]);
+            let m = margin_rad.clamp(0.0, 0.5 * (hi - lo).max(0.0));
+            q[i].clamp(lo + m, hi - m)
+        })
+    }
+
     /// World positions of the seven arm joints' frames.
     pub fn joint_positions(&self, q: &ArmJoints) -> [Point3<f64>; ARM_DOF] {
         let mut pose = Pose::identity();

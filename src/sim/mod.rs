@@ -4,5 +4,6 @@
 
 pub mod camera;
 pub mod fri;
+pub mod observer;
 pub mod puck;
 pub mod scene;

@@ -19,6 +19,7 @@
 pub mod csv;
 pub mod grade;
 pub mod log;
+pub mod paper;
 pub mod plot;
 pub mod report;
 pub mod stats;

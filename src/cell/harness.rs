@@ -1,0 +1,538 @@
+//! The whole cell as child processes on one machine: every stage binary (and, with
+//! simulated devices, the FRI robot simulator `cell-sim-arm` and the puck emulator
+//! `cell-sim-hand`), supervised like systemd's `Restart=on-failure`, plus an
+//! operator node that sends trial requests and waits for their results.
+//!
+//! Stopping ([`Cell::stop`]) sends SIGTERM to every stage (each drops its iceoryx2
+//! ports and exits), then to the simulators, and reports the domain's leftover
+//! shared-memory files (none after a clean stop).
+
+use super::setup::{upright_pose, TrialSetup};
+use super::{CellError, StageArgs, STAGES};
+use crate::config::CellConfig;
+use crate::ipc::{
+    monotonic_now_ns, Domain, MessagePublisher, MessageSubscriber, Stage, TrialRequest, TrialResult,
+};
+use crate::mesh::procedural::{generate, instance_seed, Category};
+use crate::trial::{ObjectRef, Placement};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// How long the cell may take to come up (every stage subscribed).
+pub const STARTUP_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// How the harness starts the cell.
+#[derive(Debug, Clone)]
+pub struct HarnessOptions {
+    /// Configuration, domain and run directory handed to every stage.
+    pub stage: StageArgs,
+    /// Directory of the `cell-*` binaries.
+    pub bin_dir: PathBuf,
+    /// Category databases (`<dir>/<category>/`).
+    pub db_dir: PathBuf,
+    /// The trial log file.
+    pub log_path: PathBuf,
+    /// How long the executor holds a lifted object (s).
+    pub hold_s: f64,
+    /// Longest trial before the log gives up on it (s).
+    pub trial_timeout_s: f64,
+    /// Start `cell-sim-arm` and `cell-sim-hand` (simulated devices).
+    pub simulated_devices: bool,
+    /// Joints A1..A6 (rad) the simulated arm starts at.
+    pub home_joints_rad: [f64; 7],
+}
+
+impl HarnessOptions {
+    /// Options with the defaults of `cell demo`: binaries next to the running one,
+    /// databases in `db/`, simulated devices.
+    pub fn demo(stage: StageArgs) -> Result<HarnessOptions, CellError> {
+        let exe = std::env::current_exe().map_err(|source| CellError::Io {
+            path: PathBuf::from("/proc/self/exe"),
+            source,
+        })?;
+        let bin_dir = exe.parent().map(Path::to_path_buf).unwrap_or_default();
+        Ok(HarnessOptions {
+            log_path: stage.run_dir.join("trials.sqlite"),
+            stage,
+            bin_dir,
+            db_dir: PathBuf::from("db"),
+            hold_s: 0.3,
+            trial_timeout_s: 120.0,
+            simulated_devices: true,
+            home_joints_rad: HOME_JOINTS_RAD,
+        })
+    }
+}
+
+/// The arm's resting configuration between trials: elbow up, hand above the table,
+/// clear of the camera's view of the table.
+pub const HOME_JOINTS_RAD: [f64; 7] = [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0];
+
+/// One child process.
+#[derive(Debug)]
+struct Process {
+    name: String,
+    args: Vec<String>,
+    child: Child,
+    restarts: u32,
+}
+
+/// The running cell.
+pub struct Cell {
+    options: HarnessOptions,
+    domain: Domain,
+    stages: Vec<Process>,
+    sims: Vec<Process>,
+    fri_addr: String,
+    can_interface: String,
+    operator: Option<Operator>,
+    next_trial_id: u64,
+}
+
+struct Operator {
+    requests: MessagePublisher<TrialRequest>,
+    results: MessageSubscriber<TrialResult>,
+    // Dropped last: the ports above belong to this node.
+    _stage: Stage,
+}
+
+fn free_udp_port() -> Result<u16, CellError> {
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").map_err(|source| CellError::Io {
+        path: PathBuf::from("udp 127.0.0.1:0"),
+        source,
+    })?;
+    socket
+        .local_addr()
+        .map(|a| a.port())
+        .map_err(|source| CellError::Io {
+            path: PathBuf::from("udp 127.0.0.1:0"),
+            source,
+        })
+}
+
+fn spawn(bin_dir: &Path, name: &str, args: &[String], piped: bool) -> Result<Child, CellError> {
+    let program = bin_dir.join(name);
+    Command::new(&program)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(if piped { Stdio::piped() } else { Stdio::null() })
+        .stderr(Stdio::inherit())
+        .spawn()
+        .map_err(|e| CellError::Process {
+            name: program.display().to_string(),
+            detail: format!("cannot start: {e}"),
+        })
+}
+
+fn signal(child: &Child, sig: libc::c_int) {
+    // SAFETY: kill(2) on the id of our own child; no memory is involved.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, sig);
+    }
+}
+
+/// Waits up to `timeout` for `child` to exit; kills it after that.
+fn reap(child: &mut Child, timeout: Duration) -> bool {
+    let deadline = Instant::now() + timeout;
+    while Instant::now() < deadline {
+        if let Ok(Some(_)) = child.try_wait() {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    false
+}
+
+impl Cell {
+    /// Starts the simulators (if asked) and every stage in `domain`, and waits until
+    /// all stages are up.
+    pub fn start(options: HarnessOptions, domain: Domain) -> Result<Cell, CellError> {
+        let config = CellConfig::load(&options.stage.config)?;
+        let tag = format!(
+            "{}x{}",
+            std::process::id(),
+            domain.prefix().trim_end_matches('_')
+        );
+        let (fri_addr, can_interface) = if options.simulated_devices {
+            (
+                format!("127.0.0.1:{}", free_udp_port()?),
+                format!("virtual:cell-{tag}"),
+            )
+        } else {
+            (config.fri.bind_addr.clone(), config.can.interface.clone())
+        };
+        let mut cell = Cell {
+            options,
+            domain,
+            stages: Vec::new(),
+            sims: Vec::new(),
+            fri_addr,
+            can_interface,
+            operator: None,
+            next_trial_id: 0,
+        };
+        if let Err(e) = cell.start_all() {
+            cell.shutdown();
+            return Err(e);
+        }
+        Ok(cell)
+    }
+
+    fn start_all(&mut self) -> Result<(), CellError> {
+        if self.options.simulated_devices {
+            let hand_args = vec![
+                "--interface".to_string(),
+                self.can_interface.clone(),
+                "--contact-rad".into(),
+                "1.0,1.0,1.0".into(),
+                "--boot-s".into(),
+                "0.05".into(),
+            ];
+            let mut hand = spawn(&self.options.bin_dir, "cell-sim-hand", &hand_args, true)?;
+            // The emulator hosts the virtual bus: wait for its "ready" line.
+            let mut line = String::new();
+            if let Some(out) = hand.stdout.take() {
+                let _ = BufReader::new(out).read_line(&mut line);
+            }
+            if !line.starts_with("ready") {
+                let _ = hand.kill();
+                let _ = hand.wait();
+                return Err(CellError::Process {
+                    name: "cell-sim-hand".into(),
+                    detail: "exited before it was on the bus".into(),
+                });
+            }
+            self.sims.push(Process {
+                name: "cell-sim-hand".into(),
+                args: hand_args,
+                child: hand,
+                restarts: 0,
+            });
+        }
+        for stage in STAGES {
+            let args = self.stage_args(stage);
+            let child = spawn(
+                &self.options.bin_dir,
+                &format!("cell-{stage}"),
+                &args,
+                false,
+            )?;
+            self.stages.push(Process {
+                name: stage.to_string(),
+                args,
+                child,
+                restarts: 0,
+            });
+        }
+        let node = Stage::start(&self.domain, "operator")?;
+        self.operator = Some(Operator {
+            requests: node.publisher::<TrialRequest>()?,
+            results: node.subscriber::<TrialResult>()?,
+            _stage: node,
+        });
+        self.wait_ready(STARTUP_TIMEOUT)?;
+        // The robot simulator last: it drops to monitor mode when its measurements go
+        // unanswered, so the executor's FRI driver must already listen.
+        if self.options.simulated_devices {
+            let home: Vec<String> = self
+                .options
+                .home_joints_rad
+                .iter()
+                .map(|q| q.to_string())
+                .collect();
+            let arm_args = vec![
+                "--pc-addr".to_string(),
+                self.fri_addr.clone(),
+                "--config".into(),
+                self.options.stage.config.display().to_string(),
+                "--initial-joints".into(),
+                home.join(","),
+            ];
+            let arm = spawn(&self.options.bin_dir, "cell-sim-arm", &arm_args, false)?;
+            self.sims.push(Process {
+                name: "cell-sim-arm".into(),
+                args: arm_args,
+                child: arm,
+                restarts: 0,
+            });
+        }
+        Ok(())
+    }
+
+    fn stage_args(&self, stage: &str) -> Vec<String> {
+        let mut args = self.options.stage.to_command_args(&self.domain);
+        match stage {
+            "perceive" | "plan" => {
+                args.extend(["--db-dir".into(), self.options.db_dir.display().to_string()])
+            }
+            "execute" => args.extend([
+                "--fri-bind".into(),
+                self.fri_addr.clone(),
+                "--can-interface".into(),
+                self.can_interface.clone(),
+                "--hold-s".into(),
+                self.options.hold_s.to_string(),
+            ]),
+            "log" => args.extend([
+                "--log".into(),
+                self.options.log_path.display().to_string(),
+                "--trial-timeout-s".into(),
+                self.options.trial_timeout_s.to_string(),
+            ]),
+            _ => {}
+        }
+        args
+    }
+
+    /// The domain the cell runs in.
+    pub fn domain(&self) -> &Domain {
+        &self.domain
+    }
+
+    /// Process id of stage `stage`.
+    pub fn pid(&self, stage: &str) -> Option<u32> {
+        self.stages
+            .iter()
+            .find(|p| p.name == stage)
+            .map(|p| p.child.id())
+    }
+
+    /// How often stage `stage` was restarted.
+    pub fn restarts(&self, stage: &str) -> u32 {
+        self.stages
+            .iter()
+            .find(|p| p.name == stage)
+            .map_or(0, |p| p.restarts)
+    }
+
+    /// Kills stage `stage` with SIGKILL (a crash: it cleans nothing up).
+    pub fn kill(&mut self, stage: &str) -> Result<(), CellError> {
+        let process = self
+            .stages
+            .iter_mut()
+            .find(|p| p.name == stage)
+            .ok_or_else(|| CellError::Invalid(format!("no stage {stage:?}")))?;
+        let _ = process.child.kill();
+        let _ = process.child.wait();
+        Ok(())
+    }
+
+    /// Restarts every stage whose process has exited (as systemd's
+    /// `Restart=on-failure` would); returns the stages restarted.
+    pub fn supervise(&mut self) -> Result<Vec<String>, CellError> {
+        let mut restarted = Vec::new();
+        for process in &mut self.stages {
+            if let Ok(Some(status)) = process.child.try_wait() {
+                tracing::warn!(stage = %process.name, %status, "stage exited: restarting");
+                process.child = spawn(
+                    &self.options.bin_dir,
+                    &format!("cell-{}", process.name),
+                    &process.args,
+                    false,
+                )?;
+                process.restarts += 1;
+                restarted.push(process.name.clone());
+            }
+        }
+        for process in &mut self.sims {
+            if let Ok(Some(status)) = process.child.try_wait() {
+                return Err(CellError::Process {
+                    name: process.name.clone(),
+                    detail: format!("simulator exited ({status})"),
+                });
+            }
+        }
+        if !restarted.is_empty() {
+            self.wait_ready(STARTUP_TIMEOUT)?;
+        }
+        Ok(restarted)
+    }
+
+    /// Waits until every stage's node is alive and subscribed to trial requests.
+    pub fn wait_ready(&mut self, timeout: Duration) -> Result<(), CellError> {
+        let started = Instant::now();
+        let operator = self
+            .operator
+            .as_ref()
+            .ok_or_else(|| CellError::Invalid("the operator node is not running".into()))?;
+        loop {
+            let subscribers = operator.requests.subscriber_peers()?;
+            let mut all_alive = subscribers.alive >= STAGES.len();
+            for stage in STAGES {
+                all_alive &= operator._stage.stage_status(stage)? == crate::ipc::StageStatus::Alive;
+            }
+            if all_alive {
+                return Ok(());
+            }
+            for process in &mut self.stages {
+                if let Ok(Some(status)) = process.child.try_wait() {
+                    return Err(CellError::Process {
+                        name: format!("cell-{}", process.name),
+                        detail: format!("exited while starting ({status})"),
+                    });
+                }
+            }
+            if started.elapsed() > timeout {
+                return Err(CellError::Timeout {
+                    what: format!(
+                        "cell start-up ({} of {} stages subscribed)",
+                        subscribers.alive,
+                        STAGES.len()
+                    ),
+                    waited_s: timeout.as_secs_f64(),
+                });
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// A fresh trial id (milliseconds since the epoch at the first, then counting).
+    pub fn new_trial_id(&mut self) -> u64 {
+        if self.next_trial_id == 0 {
+            self.next_trial_id = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(1, |d| d.as_millis() as u64);
+        }
+        self.next_trial_id += 1;
+        self.next_trial_id
+    }
+
+    /// Sends one trial request and waits for its result. `setup` (the simulated
+    /// world of the trial) is written first. `after_send` runs once the request is
+    /// out (tests use it to kill a stage mid-trial). If the log stage dies before it
+    /// answers, the result is lost: `Ok(None)`.
+    pub fn run_trial(
+        &mut self,
+        setup: Option<&TrialSetup>,
+        trial_id: u64,
+        category: &str,
+        task: &str,
+        method: &str,
+        after_send: &mut dyn FnMut(&mut Cell),
+    ) -> Result<Option<TrialResult>, CellError> {
+        if let Some(setup) = setup {
+            setup.write(&self.options.stage.run_dir)?;
+        }
+        let request = TrialRequest::new(trial_id, monotonic_now_ns(), category, task, method)?;
+        let operator = self
+            .operator
+            .as_ref()
+            .ok_or_else(|| CellError::Invalid("the operator node is not running".into()))?;
+        operator.requests.send(&request)?;
+        after_send(self);
+        let deadline =
+            Instant::now() + Duration::from_secs_f64(self.options.trial_timeout_s + 30.0);
+        loop {
+            let operator = self
+                .operator
+                .as_ref()
+                .ok_or_else(|| CellError::Invalid("the operator node is not running".into()))?;
+            if let Some(result) = operator.results.receive_timeout(super::TICK)? {
+                if result.trial_id == trial_id {
+                    return Ok(Some(result));
+                }
+                continue;
+            }
+            let log = self.stages.iter_mut().find(|p| p.name == "log");
+            if let Some(log) = log {
+                if let Ok(Some(_)) = log.child.try_wait() {
+                    tracing::warn!(trial_id, "the log stage died: the trial's result is lost");
+                    return Ok(None);
+                }
+            }
+            if Instant::now() > deadline {
+                return Err(CellError::Timeout {
+                    what: format!("result of trial {trial_id}"),
+                    waited_s: self.options.trial_timeout_s + 30.0,
+                });
+            }
+        }
+    }
+
+    fn shutdown(&mut self) {
+        self.operator = None;
+        for p in &self.stages {
+            signal(&p.child, libc::SIGTERM);
+        }
+        for p in &mut self.stages {
+            if !reap(&mut p.child, Duration::from_secs(10)) {
+                tracing::warn!(stage = %p.name, "did not stop on SIGTERM: killed");
+            }
+        }
+        for p in &self.sims {
+            signal(&p.child, libc::SIGTERM);
+        }
+        for p in &mut self.sims {
+            reap(&mut p.child, Duration::from_secs(5));
+        }
+        self.stages.clear();
+        self.sims.clear();
+    }
+
+    /// Stops every process; returns the domain's leftover shared-memory files
+    /// (empty after a clean stop).
+    pub fn stop(mut self) -> Result<Vec<PathBuf>, CellError> {
+        self.shutdown();
+        Ok(self.domain.leftover_files()?)
+    }
+}
+
+impl Drop for Cell {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+/// A novel object of `category`: instance `index` of the set `set_seed`, checked
+/// not to be one of the database's models (same triangles and vertices).
+pub fn novel_object(
+    category: Category,
+    set_seed: u64,
+    index: u64,
+    db: &crate::category::CategoryDb,
+) -> ObjectRef {
+    let mut k = 0u64;
+    loop {
+        let seed = instance_seed(set_seed ^ 0x6e6f_7665_6c00, index + k * 1_000_003);
+        let (mesh, _) = generate(category, seed);
+        let known = db.meshes.iter().any(|m| {
+            m.triangles.len() == mesh.triangles.len() && m.vertices.first() == mesh.vertices.first()
+        });
+        if !known {
+            return ObjectRef {
+                name: format!("{category}-novel-{set_seed}-{index}"),
+                seed: Some(seed),
+            };
+        }
+        k += 1;
+    }
+}
+
+/// Where placements are drawn: the part of the table in front of the robot that the
+/// arm reaches comfortably from above and from the side (base frame, m).
+pub const PLACEMENT_X_M: (f64, f64) = (0.50, 0.68);
+/// See [`PLACEMENT_X_M`].
+pub const PLACEMENT_Y_M: (f64, f64) = (-0.18, 0.18);
+
+/// Placement `index` of an object, drawn from `rng`: upright, at a random point of
+/// the comfortable area, turned by a random yaw.
+pub fn random_placement(config: &CellConfig, rng: &mut ChaCha8Rng, index: u32) -> Placement {
+    let x = rng.gen_range(PLACEMENT_X_M.0..PLACEMENT_X_M.1);
+    let y = rng.gen_range(PLACEMENT_Y_M.0..PLACEMENT_Y_M.1);
+    let yaw = rng.gen_range(-std::f64::consts::PI..std::f64::consts::PI);
+    Placement {
+        index,
+        base_from_object: upright_pose(config, [x, y], yaw),
+    }
+}
+
+/// The random generator of placements of object `object_index` under `seed`.
+pub fn placement_rng(seed: u64, object_index: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(instance_seed(seed ^ 0x706c_6163, object_index))
+}

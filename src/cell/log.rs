@@ -1,0 +1,527 @@
+//! `cell-log`: follows every trial through the cell, has it graded, records it in
+//! the SQLite trial log and publishes the result.
+//!
+//! A trial begins with its request and ends when the executor reports `Done` or
+//! `Stopped`. While it runs, the log watches the stage whose answer is due (camera,
+//! then perceive, plan, execute): when that stage's process is dead or gone, the
+//! trial ends as a failure with the cause "a stage died" (recorded as `other`, the
+//! note naming the stage); after `trial_timeout_s` it ends as timed out.
+//!
+//! Grading: the simulated observer ([`crate::sim::observer`]) with the trial's
+//! setup file (the simulated world), or the person at the terminal
+//! ([`crate::trial::prompt_grade`]). The trial row and its grade are committed before
+//! the result is published, so a trial reported to the operator is on disk.
+
+use super::execute::error_kind;
+use super::notify::{self, Watchdog};
+use super::setup::TrialSetup;
+use super::{span_ms, stop_requested, CellError, TICK};
+use crate::config::CellConfig;
+use crate::geometry::{Pose, PoseJson};
+use crate::ipc::{
+    monotonic_now_ns, wait_any, CloudTopic, Domain, ExecutionStatus, FailureCause as IpcCause,
+    FitStatus, Fits, Grade as IpcGrade, GraspPlan, Phase, Stage, StageStatus, Timings,
+    TrialRequest, TrialResult, Wakeable,
+};
+use crate::robot::Robot;
+use crate::sim::observer::{Attempt, Observation, Observer};
+use crate::trial::{
+    FailureCause, Grade, GradeSource, Grading, NewTrial, ObjectRef, Placement, TrialLog,
+    UtcTimestamp,
+};
+use serde_json::json;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// Who grades the trials.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ObserverKind {
+    /// The simulated observer (grasp simulator on the true object).
+    Sim,
+    /// A person at the terminal (s / p / f, cause, note).
+    Terminal,
+}
+
+/// Options of the log stage besides the configuration.
+#[derive(Debug, Clone)]
+pub struct LogOptions {
+    /// The trial log file.
+    pub log_path: PathBuf,
+    /// The directory of trial setup files.
+    pub run_dir: PathBuf,
+    /// Who grades.
+    pub observer: ObserverKind,
+    /// Longest a trial may take from request to the executor's end (s).
+    pub trial_timeout_s: f64,
+}
+
+/// One trial being followed.
+#[derive(Debug)]
+struct Trial {
+    request: TrialRequest,
+    began: Instant,
+    started_at: UtcTimestamp,
+    cloud_ns: u64,
+    fits: Option<Fits>,
+    plan: Option<GraspPlan>,
+    first_command_ns: u64,
+    closing_joints: Option<[f64; 7]>,
+    end: Option<ExecutionStatus>,
+}
+
+impl Trial {
+    /// The stage whose answer is due.
+    fn waiting_for(&self) -> &'static str {
+        if self.plan.is_some() {
+            "execute"
+        } else if self.fits.is_some() {
+            "plan"
+        } else if self.cloud_ns != 0 {
+            "perceive"
+        } else {
+            "camera"
+        }
+    }
+
+    fn timings(&self) -> Timings {
+        let request_ns = self.request.stamp_ns;
+        let fits_ns = self.fits.map_or(0, |f| f.stamp_ns);
+        let plan_ns = self.plan.map_or(0, |p| p.stamp_ns);
+        let end_ns = self.end.map_or(0, |e| e.stamp_ns);
+        let s = |a, b| span_ms(a, b) * 1e-3;
+        Timings {
+            capture_s: s(request_ns, self.cloud_ns),
+            perceive_s: s(self.cloud_ns, fits_ns),
+            plan_s: s(fits_ns, plan_ns),
+            execute_s: s(plan_ns, end_ns),
+            snapshot_to_grasp_command_s: s(self.cloud_ns, self.first_command_ns),
+            total_s: s(request_ns, monotonic_now_ns()),
+        }
+    }
+}
+
+/// How a trial ended, before grading.
+#[derive(Debug, Clone, PartialEq)]
+enum Ending {
+    /// The executor reported the end (or the plan's failure).
+    Reported,
+    /// The stage whose answer was due died.
+    StageDied(&'static str),
+    /// No end within the timeout.
+    TimedOut(&'static str),
+}
+
+/// The ipc cause of a trial log cause.
+fn ipc_cause(cause: Option<FailureCause>) -> IpcCause {
+    match cause {
+        None => IpcCause::None,
+        Some(FailureCause::Reachability) => IpcCause::Reachability,
+        Some(FailureCause::Registration) => IpcCause::RegistrationFailure,
+        Some(FailureCause::ShapeDissimilarity) => IpcCause::ShapeDissimilarity,
+        Some(FailureCause::Execution) => IpcCause::Execution,
+        Some(FailureCause::Other) => IpcCause::Other,
+    }
+}
+
+fn ipc_grade(grade: Grade) -> IpcGrade {
+    match grade {
+        Grade::Success => IpcGrade::Success,
+        Grade::Partial => IpcGrade::Partial,
+        Grade::Failure => IpcGrade::Failure,
+    }
+}
+
+/// The trial log's cause of a plan's failure.
+fn plan_cause(cause: IpcCause) -> FailureCause {
+    match cause {
+        IpcCause::Reachability => FailureCause::Reachability,
+        IpcCause::RegistrationFailure => FailureCause::Registration,
+        IpcCause::ShapeDissimilarity => FailureCause::ShapeDissimilarity,
+        IpcCause::Execution | IpcCause::HardwareFault => FailureCause::Execution,
+        _ => FailureCause::Other,
+    }
+}
+
+/// The fits as JSON for the trial log.
+fn fits_json(fits: Option<&Fits>) -> serde_json::Value {
+    let Some(fits) = fits else {
+        return json!([]);
+    };
+    let list = fits.fits().unwrap_or(&[]);
+    serde_json::Value::Array(
+        list.iter()
+            .map(|f| {
+                let pose = f
+                    .base_from_model
+                    .to_pose("fit")
+                    .map(|p| PoseJson::from(&p))
+                    .ok();
+                json!({
+                    "model_id": f.model_id,
+                    "status": f.status().map(|s| format!("{s:?}")).unwrap_or_default(),
+                    "base_from_model": pose,
+                    "eps_m2": f.eps,
+                    "sigma_m2": f.sigma,
+                })
+            })
+            .collect(),
+    )
+}
+
+/// The pose of the best fit (lowest eps among usable fits).
+fn best_fit(fits: Option<&Fits>) -> Option<Pose> {
+    fits?
+        .fits()
+        .ok()?
+        .iter()
+        .filter(|f| f.status().is_ok_and(|s| s != FitStatus::Failed) && f.eps.is_finite())
+        .min_by(|a, b| a.eps.total_cmp(&b.eps))
+        .and_then(|f| f.base_from_model.to_pose("fit").ok())
+}
+
+/// The log stage's state: the trials being followed and what grades them.
+struct Logger {
+    options: LogOptions,
+    log: TrialLog,
+    observer: Option<Observer>,
+    robot: Robot,
+    trials: BTreeMap<u64, Trial>,
+}
+
+impl Logger {
+    fn attempt(&self, trial: &Trial) -> Result<Attempt, String> {
+        let Some(plan) = &trial.plan else {
+            return Err("no plan".into());
+        };
+        let failure = plan.failure().unwrap_or(IpcCause::Other);
+        if failure != IpcCause::None {
+            let detail = match failure {
+                IpcCause::RegistrationFailure => "no model registered to the object",
+                IpcCause::Reachability => "no reachable grasp",
+                _ => "the planner failed",
+            };
+            return Ok(Attempt::NotPlanned {
+                cause: plan_cause(failure),
+                detail: detail.to_string(),
+            });
+        }
+        let Some(end) = &trial.end else {
+            return Err("no execution end".into());
+        };
+        if !matches!(end.phase(), Ok(Phase::Done)) {
+            return Ok(Attempt::Stopped {
+                kind: error_kind(end.error_code).to_string(),
+            });
+        }
+        let base_from_palm = match trial.closing_joints {
+            Some(q) => self.robot.arm().palm(&q),
+            None => plan
+                .base_from_palm
+                .to_pose("plan palm")
+                .map_err(|e| e.to_string())?,
+        };
+        Ok(Attempt::Executed {
+            base_from_palm,
+            spread_rad: plan.spread_rad,
+            best_fit: best_fit(trial.fits.as_ref()),
+        })
+    }
+
+    fn observe(
+        &self,
+        trial: &Trial,
+        ending: &Ending,
+        setup: Option<&TrialSetup>,
+    ) -> Result<(Grading, GradeSource, Option<Observation>), CellError> {
+        type Graded = (Grading, GradeSource, Option<Observation>);
+        let died = |note: String| -> Result<Graded, CellError> {
+            Ok((
+                Grading::new(Grade::Failure, Some(FailureCause::Other), Some(note))?,
+                GradeSource::Simulated,
+                None,
+            ))
+        };
+        match ending {
+            Ending::StageDied(stage) => {
+                return died(format!("stage {stage} died during the trial"))
+            }
+            Ending::TimedOut(stage) => {
+                return died(format!(
+                    "no answer from stage {stage} within {} s",
+                    self.options.trial_timeout_s
+                ))
+            }
+            Ending::Reported => {}
+        }
+        let attempt = self.attempt(trial).map_err(CellError::Invalid)?;
+        match self.options.observer {
+            ObserverKind::Terminal => {
+                eprintln!("trial {}: {:?}; grade it", trial.request.trial_id, attempt);
+                let grading =
+                    crate::trial::prompt_grade(std::io::stdin().lock(), std::io::stderr().lock())?;
+                Ok((grading, GradeSource::Observer, None))
+            }
+            ObserverKind::Sim => {
+                let (Some(observer), Some(setup)) = (&self.observer, setup) else {
+                    return died(
+                        "no trial setup: the simulated observer cannot grade it".to_string(),
+                    );
+                };
+                let base_from_object = setup.base_from_object().map_err(|e| CellError::Setup {
+                    path: TrialSetup::path(&self.options.run_dir, setup.trial_id),
+                    problem: e.to_string(),
+                })?;
+                let seen = observer
+                    .grade(
+                        &setup.object.name,
+                        &setup.mesh(),
+                        &base_from_object,
+                        &attempt,
+                    )
+                    .map_err(|e| CellError::Invalid(e.to_string()))?;
+                let grading = Grading::new(seen.grade, seen.cause, Some(seen.note.clone()))?;
+                Ok((grading, GradeSource::Simulated, Some(seen)))
+            }
+        }
+    }
+
+    /// Grades, records and returns the result of a finished trial.
+    fn finish(&mut self, trial: Trial, ending: Ending) -> Result<TrialResult, CellError> {
+        let trial_id = trial.request.trial_id;
+        let setup = TrialSetup::read(&self.options.run_dir, trial_id).unwrap_or_else(|e| {
+            tracing::error!(trial_id, "{e}");
+            None
+        });
+        let (grading, source, seen) = self.observe(&trial, &ending, setup.as_ref())?;
+        let timings = trial.timings();
+        let (object, placement, campaign_id, seeds) = match &setup {
+            Some(s) => (
+                s.object.clone(),
+                s.placement,
+                s.campaign_id.clone(),
+                BTreeMap::from([
+                    ("trial".to_string(), trial_id),
+                    ("noise".to_string(), s.noise_seed),
+                    ("perception".to_string(), s.perception_seed),
+                ]),
+            ),
+            None => (
+                ObjectRef {
+                    name: "unknown".into(),
+                    seed: None,
+                },
+                Placement {
+                    index: 0,
+                    base_from_object: PoseJson::from(&Pose::identity()),
+                },
+                None,
+                BTreeMap::from([("trial".to_string(), trial_id)]),
+            ),
+        };
+        let planned = trial
+            .plan
+            .filter(|p| matches!(p.failure(), Ok(IpcCause::None)))
+            .and_then(|p| {
+                p.base_from_palm
+                    .to_pose("plan")
+                    .ok()
+                    .map(|pose| (PoseJson::from(&pose), p.joints_rad.to_vec()))
+            });
+        let new = NewTrial {
+            started_at: trial.started_at,
+            category: trial.request.category()?.to_string(),
+            task: trial.request.task()?.to_string(),
+            method: trial.request.method()?.to_string(),
+            object,
+            placement,
+            campaign_id,
+            snapshot_path: None,
+            fits: fits_json(trial.fits.as_ref()),
+            planned_pose: planned.as_ref().map(|p| p.0.clone()),
+            planned_joints: planned.map(|p| p.1),
+            outcome: Some(json!({
+                "cell_trial_id": trial_id,
+                "ending": format!("{ending:?}"),
+                "execution_phase": trial.end.and_then(|e| e.phase().ok()).map(|p| format!("{p:?}")),
+                "execution_error": trial.end.map(|e| error_kind(e.error_code)),
+                "epsilon": seen.as_ref().map(|s| s.epsilon),
+                "contacts": seen.as_ref().map(|s| s.contacts),
+                "registration_error_m": seen.as_ref().and_then(|s| s.registration_error_m),
+                "timings_s": timings,
+            })),
+            seeds,
+        };
+        let id = self.log.record_trial(&new)?;
+        self.log.grade(id, &grading, source, UtcTimestamp::now())?;
+        tracing::info!(trial_id, log_id = id, %grading, "trial graded");
+        let cause = match ending {
+            Ending::StageDied(_) => IpcCause::StageDied,
+            Ending::TimedOut(_) => IpcCause::Timeout,
+            Ending::Reported => ipc_cause(grading.cause),
+        };
+        Ok(TrialResult::new(
+            trial_id,
+            monotonic_now_ns(),
+            ipc_grade(grading.grade),
+            cause,
+            timings,
+        ))
+    }
+}
+
+/// Runs the log stage until SIGTERM/SIGINT.
+pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<(), CellError> {
+    if !(options.trial_timeout_s.is_finite() && options.trial_timeout_s > 0.0) {
+        return Err(CellError::Invalid(format!(
+            "--trial-timeout-s {}: must be a finite number > 0",
+            options.trial_timeout_s
+        )));
+    }
+    if let Some(dir) = options
+        .log_path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+    {
+        std::fs::create_dir_all(dir).map_err(|source| CellError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+    }
+    let log = TrialLog::open(&options.log_path)?;
+    let observer = match options.observer {
+        ObserverKind::Sim => {
+            Some(Observer::new(config).map_err(|e| CellError::Invalid(e.to_string()))?)
+        }
+        ObserverKind::Terminal => None,
+    };
+    let mut logger = Logger {
+        robot: Robot::load(config)?,
+        options,
+        log,
+        observer,
+        trials: BTreeMap::new(),
+    };
+    let stage = Stage::start(domain, "log")?;
+    let results = stage.publisher::<TrialResult>()?;
+    let clouds = stage.cloud_subscriber(CloudTopic::Camera)?;
+    let fits = stage.subscriber::<Fits>()?;
+    let plans = stage.subscriber::<GraspPlan>()?;
+    let statuses = stage.subscriber::<ExecutionStatus>()?;
+    let requests = stage.subscriber::<TrialRequest>()?;
+    notify::ready("log following trials");
+    let mut watchdog = Watchdog::from_env();
+    let timeout = Duration::from_secs_f64(logger.options.trial_timeout_s);
+    while !stop_requested() {
+        watchdog.ping();
+        let inputs: [&dyn Wakeable; 5] = [&requests, &clouds, &fits, &plans, &statuses];
+        match wait_any(&inputs, TICK) {
+            Ok(_) => {}
+            Err(_) if stop_requested() => break,
+            Err(e) => return Err(e.into()),
+        }
+        while let Some(request) = requests.try_receive()? {
+            logger.trials.insert(
+                request.trial_id,
+                Trial {
+                    request,
+                    began: Instant::now(),
+                    started_at: UtcTimestamp::now(),
+                    cloud_ns: 0,
+                    fits: None,
+                    plan: None,
+                    first_command_ns: 0,
+                    closing_joints: None,
+                    end: None,
+                },
+            );
+        }
+        while let Some(cloud) = clouds.try_receive()? {
+            let h = cloud.header();
+            if let Some(t) = logger.trials.get_mut(&h.trial_id) {
+                t.cloud_ns = h.stamp_ns;
+            }
+        }
+        while let Some(f) = fits.try_receive()? {
+            if let Some(t) = logger.trials.get_mut(&f.trial_id) {
+                t.fits = Some(f);
+            }
+        }
+        while let Some(p) = plans.try_receive()? {
+            if let Some(t) = logger.trials.get_mut(&p.trial_id) {
+                t.plan = Some(p);
+            }
+        }
+        while let Some(s) = statuses.try_receive()? {
+            let Some(t) = logger.trials.get_mut(&s.trial_id) else {
+                continue;
+            };
+            match s.phase() {
+                Ok(Phase::MovingToPregrasp) if t.first_command_ns == 0 => {
+                    t.first_command_ns = s.stamp_ns
+                }
+                Ok(Phase::Closing) => t.closing_joints = Some(s.joints.arm_rad),
+                Ok(Phase::Done | Phase::Stopped) => t.end = Some(s),
+                _ => {}
+            }
+        }
+        let mut finished = Vec::new();
+        for (id, trial) in &logger.trials {
+            if trial.end.is_some() {
+                finished.push((*id, Ending::Reported));
+                continue;
+            }
+            let due = trial.waiting_for();
+            if matches!(
+                stage.stage_status(due)?,
+                StageStatus::Dead | StageStatus::Missing
+            ) {
+                finished.push((*id, Ending::StageDied(due)));
+            } else if trial.began.elapsed() > timeout {
+                finished.push((*id, Ending::TimedOut(due)));
+            }
+        }
+        for (id, ending) in finished {
+            let Some(trial) = logger.trials.remove(&id) else {
+                continue;
+            };
+            let result = match logger.finish(trial, ending) {
+                Ok(result) => result,
+                Err(e) => {
+                    tracing::error!(trial_id = id, "trial not recorded: {e}");
+                    TrialResult::new(
+                        id,
+                        monotonic_now_ns(),
+                        IpcGrade::Failure,
+                        IpcCause::Other,
+                        Timings::default(),
+                    )
+                }
+            };
+            results.send(&result)?;
+        }
+    }
+    notify::stopping();
+    Ok(())
+}
+
+/// Where the log stage keeps trials by default, under the run directory.
+pub fn default_log_path(run_dir: &Path) -> PathBuf {
+    run_dir.join("trials.sqlite")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn causes_map_both_ways() {
+        for cause in FailureCause::ALL {
+            let ipc = ipc_cause(Some(cause));
+            assert_eq!(plan_cause(ipc), cause, "{cause:?}");
+        }
+        assert_eq!(ipc_cause(None), IpcCause::None);
+        assert_eq!(ipc_grade(Grade::Partial), IpcGrade::Partial);
+        assert!(best_fit(None).is_none());
+    }
+}

@@ -1,0 +1,333 @@
+//! `cell-plan`: the grasp for each trial from the fits of every category model.
+//!
+//! For a trial request (category, task, method) and the trial's fits it maximises
+//! eq. 2 over the task's example grasps of every registered model with the method's
+//! kernel (`laplace`, `gaussian`, `gaussian-r`), or takes the best-single baseline
+//! (`best-single`), subject to the table and to inverse-kinematic reachability of
+//! the grasp and its pre-grasp ([`crate::plan::plan`]). It publishes the palm poses
+//! with the joint solutions, or a plan marked failed with the cause: registration
+//! (no usable fit), reachability (nothing reachable) or other (bad request).
+
+use super::notify::{self, Watchdog};
+use super::{stop_requested, CellError, TICK};
+use crate::category::CategoryDb;
+use crate::config::CellConfig;
+use crate::ipc::Domain;
+use crate::ipc::{
+    monotonic_now_ns, wait_any, FailureCause, FitStatus, Fits, GraspPlan, JointStates, Stage,
+    TrialRequest, Wakeable,
+};
+use crate::plan::{plan, Kernel, ModelFit, PlanOptions, PlannedGrasp, Reachability};
+use crate::robot::kinematics::ArmJoints;
+use crate::robot::{HandPose, Robot};
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+
+/// The methods a trial request may name.
+pub const METHODS: [&str; 4] = ["laplace", "gaussian", "gaussian-r", "best-single"];
+
+/// The kernel of `method`, and whether the best-single baseline is wanted.
+pub fn method_kernel(method: &str) -> Option<(Kernel, bool)> {
+    match method {
+        "laplace" => Some((Kernel::LAPLACE_DEFAULT, false)),
+        "gaussian" => Some((Kernel::Gaussian, false)),
+        "gaussian-r" => Some((Kernel::GAUSSIAN_R_DEFAULT, false)),
+        "best-single" => Some((Kernel::LAPLACE_DEFAULT, true)),
+        _ => None,
+    }
+}
+
+/// Category databases loaded on first use, from `<db dir>/<category>/`.
+#[derive(Debug)]
+pub struct Databases {
+    dir: PathBuf,
+    loaded: HashMap<String, CategoryDb>,
+}
+
+impl Databases {
+    /// Databases under `dir` (e.g. `db/`).
+    pub fn new(dir: &Path) -> Databases {
+        Databases {
+            dir: dir.to_path_buf(),
+            loaded: HashMap::new(),
+        }
+    }
+
+    /// The database of `category`, loaded once.
+    pub fn get(&mut self, category: &str) -> Result<&CategoryDb, CellError> {
+        if !self.loaded.contains_key(category) {
+            let valid = category
+                .bytes()
+                .all(|b| b.is_ascii_lowercase() || b == b'-' || b == b'_');
+            if category.is_empty() || !valid {
+                return Err(CellError::Invalid(format!(
+                    "category {category:?}: not a category name"
+                )));
+            }
+            let db = CategoryDb::load(&self.dir.join(category)).map_err(|source| {
+                CellError::Category {
+                    category: category.to_string(),
+                    source,
+                }
+            })?;
+            self.loaded.insert(category.to_string(), db);
+        }
+        Ok(&self.loaded[category])
+    }
+}
+
+/// Why a trial got no plan to execute.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlanFailure {
+    /// The cause, as the log records it.
+    pub cause: FailureCause,
+    /// What happened, for the log.
+    pub detail: String,
+}
+
+/// The planner's fits from the received ones: converged or not-converged fits of
+/// models the database has (failed registrations are left out).
+pub fn planner_fits(db: &CategoryDb, fits: &Fits) -> Result<Vec<ModelFit>, CellError> {
+    let mut out = Vec::new();
+    for fit in fits.fits()? {
+        if fit.status()? == FitStatus::Failed {
+            continue;
+        }
+        let Some(model) = db.file.models.get(fit.model_id as usize) else {
+            return Err(CellError::Invalid(format!(
+                "fit of model {} but the {} database has {} models",
+                fit.model_id,
+                db.file.category,
+                db.file.models.len()
+            )));
+        };
+        out.push(ModelFit {
+            name: model.name.clone(),
+            base_from_model: fit.base_from_model.to_pose("fit base_from_model")?,
+            eps_m2: fit.eps,
+            sigma_m2: fit.sigma,
+        });
+    }
+    Ok(out)
+}
+
+/// Plans trial `request` from `fits`: the grasp to execute, or why there is none.
+pub fn plan_trial(
+    config: &CellConfig,
+    robot: &Robot,
+    dbs: &mut Databases,
+    request: &TrialRequest,
+    fits: &Fits,
+) -> Result<PlannedGrasp, PlanFailure> {
+    let other = |detail: String| PlanFailure {
+        cause: FailureCause::Other,
+        detail,
+    };
+    let category = request.category().map_err(|e| other(e.to_string()))?;
+    let task = request.task().map_err(|e| other(e.to_string()))?;
+    let method = request.method().map_err(|e| other(e.to_string()))?;
+    let (kernel, best_single) = method_kernel(method).ok_or_else(|| {
+        other(format!(
+            "method {method:?}: unknown (use {})",
+            METHODS.join(", ")
+        ))
+    })?;
+    let db = dbs.get(category).map_err(|e| other(e.to_string()))?;
+    let model_fits = planner_fits(db, fits).map_err(|e| other(e.to_string()))?;
+    if model_fits.is_empty() {
+        return Err(PlanFailure {
+            cause: FailureCause::RegistrationFailure,
+            detail: "no model was registered to the object".into(),
+        });
+    }
+    let grasps = crate::plan::category::example_grasps(db, &model_fits, task)
+        .map_err(|e| other(e.to_string()))?;
+    let options = PlanOptions::new(kernel, config);
+    let outcome = plan(
+        &model_fits,
+        &grasps,
+        task,
+        &options,
+        Some(robot as &dyn Reachability),
+    )
+    .map_err(|e| other(e.to_string()))?;
+    let grasp = if best_single {
+        outcome.best_single.grasp
+    } else {
+        outcome.plan.grasp
+    };
+    if !grasp.reachable {
+        let why = grasp
+            .unreachable
+            .as_ref()
+            .map_or("not reachable".to_string(), |u| u.to_string());
+        return Err(PlanFailure {
+            cause: FailureCause::Reachability,
+            detail: why,
+        });
+    }
+    Ok(grasp)
+}
+
+/// Re-solves the grasp's inverse kinematics seeded first with `current` (the arm's
+/// joints now): the pre-grasp near the arm, the grasp near the pre-grasp. The
+/// planner only needs some solution to know a pose is reachable, and from its
+/// generic seeds it may find one on another branch (shoulder turned by half a
+/// turn); the executor's joint-space move there would sweep the palm out of the
+/// workspace. Keeps the planner's solutions if these seeds find nothing better.
+pub fn solve_near(robot: &Robot, grasp: &mut PlannedGrasp, current: &ArmJoints) {
+    let hand = HandPose {
+        spread_rad: grasp.spread_rad,
+        flex_rad: [0.0; 3],
+    };
+    let mut seeds = vec![*current];
+    seeds.extend(grasp.pregrasp_joints);
+    let Ok(pre) = robot.reach(&grasp.pregrasp_pose, &hand, &seeds) else {
+        return;
+    };
+    let mut seeds = vec![pre.joints];
+    seeds.extend(grasp.joints);
+    let Ok(at) = robot.reach(&grasp.pose, &hand, &seeds) else {
+        return;
+    };
+    grasp.pregrasp_joints = Some(pre.joints);
+    grasp.joints = Some(at.joints);
+}
+
+/// The message for a planned grasp.
+pub fn plan_message(
+    trial_id: u64,
+    method: &str,
+    grasp: &PlannedGrasp,
+) -> Result<GraspPlan, CellError> {
+    let (Some(joints), Some(pregrasp_joints)) = (grasp.joints, grasp.pregrasp_joints) else {
+        return Err(CellError::Invalid(
+            "a reachable grasp without joint solutions".into(),
+        ));
+    };
+    let mut msg = GraspPlan::new(
+        trial_id,
+        monotonic_now_ns(),
+        &grasp.pose,
+        &grasp.pregrasp_pose,
+        joints,
+        pregrasp_joints,
+        grasp.objective,
+        true,
+        method,
+    )?;
+    msg.spread_rad = grasp.spread_rad;
+    Ok(msg)
+}
+
+/// Most trials whose request or fits are kept while waiting for the other.
+const PENDING_TRIALS: usize = 16;
+
+/// Runs the plan stage until SIGTERM/SIGINT; databases come from `db_dir`.
+pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), CellError> {
+    let robot = Robot::load(config)?;
+    let mut dbs = Databases::new(db_dir);
+    let stage = Stage::start(domain, "plan")?;
+    let plans = stage.publisher::<GraspPlan>()?;
+    let fits_sub = stage.subscriber::<Fits>()?;
+    let joints_sub = stage.subscriber::<JointStates>()?;
+    let requests = stage.subscriber::<TrialRequest>()?;
+    let mut arm_now: ArmJoints = super::harness::HOME_JOINTS_RAD;
+    notify::ready("plan waiting for fits");
+    let mut watchdog = Watchdog::from_env();
+    let mut pending_requests: BTreeMap<u64, TrialRequest> = BTreeMap::new();
+    let mut pending_fits: BTreeMap<u64, Fits> = BTreeMap::new();
+    while !stop_requested() {
+        watchdog.ping();
+        let inputs: [&dyn Wakeable; 2] = [&requests, &fits_sub];
+        match wait_any(&inputs, TICK) {
+            Ok(_) => {}
+            Err(_) if stop_requested() => break,
+            Err(e) => return Err(e.into()),
+        }
+        while let Some(r) = requests.try_receive()? {
+            pending_requests.insert(r.trial_id, r);
+        }
+        while let Some(f) = fits_sub.try_receive()? {
+            pending_fits.insert(f.trial_id, f);
+        }
+        while let Some(j) = joints_sub.try_receive()? {
+            arm_now = j.joints.arm_rad;
+        }
+        let ready: Vec<u64> = pending_fits
+            .keys()
+            .filter(|id| pending_requests.contains_key(id))
+            .copied()
+            .collect();
+        for trial_id in ready {
+            let (Some(request), Some(fits)) = (
+                pending_requests.remove(&trial_id),
+                pending_fits.remove(&trial_id),
+            ) else {
+                continue;
+            };
+            let method = request.method().unwrap_or("?").to_string();
+            let started = std::time::Instant::now();
+            let msg = match plan_trial(config, &robot, &mut dbs, &request, &fits) {
+                Ok(mut grasp) => {
+                    solve_near(&robot, &mut grasp, &arm_now);
+                    plan_message(trial_id, &method, &grasp)?
+                }
+                Err(failure) => {
+                    tracing::warn!(trial_id, cause = ?failure.cause, "no plan: {}", failure.detail);
+                    let method = if method.len() <= crate::ipc::NAME_CAPACITY {
+                        method.as_str()
+                    } else {
+                        "?"
+                    };
+                    GraspPlan::failed(trial_id, monotonic_now_ns(), failure.cause, method)?
+                }
+            };
+            plans.send(&msg)?;
+            tracing::info!(
+                trial_id,
+                ms = started.elapsed().as_secs_f64() * 1e3,
+                "plan published"
+            );
+        }
+        trim(&mut pending_requests);
+        trim(&mut pending_fits);
+    }
+    notify::stopping();
+    Ok(())
+}
+
+/// Keeps the newest [`PENDING_TRIALS`] entries.
+pub(crate) fn trim<T>(map: &mut BTreeMap<u64, T>) {
+    while map.len() > PENDING_TRIALS {
+        map.pop_first();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn methods_map_to_kernels() {
+        for m in METHODS {
+            assert!(method_kernel(m).is_some(), "{m}");
+        }
+        assert!(method_kernel("best-single").unwrap().1);
+        assert!(!method_kernel("laplace").unwrap().1);
+        assert!(method_kernel("nearest").is_none());
+        let mut map: BTreeMap<u64, u8> = (0..40).map(|i| (i, 0)).collect();
+        trim(&mut map);
+        assert_eq!(map.len(), PENDING_TRIALS);
+        assert_eq!(*map.keys().next().unwrap(), 40 - PENDING_TRIALS as u64);
+    }
+
+    #[test]
+    fn unknown_categories_are_named() {
+        let mut dbs = Databases::new(Path::new("db"));
+        let err = dbs.get("../etc").unwrap_err().to_string();
+        assert!(err.contains("../etc"), "{err}");
+        let err = dbs.get("teapot").unwrap_err().to_string();
+        assert!(err.contains("teapot"), "{err}");
+    }
+}

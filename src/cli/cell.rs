@@ -1,0 +1,717 @@
+//! `cell demo`, `cell run`, `cell trial` and `cell campaign`: the cell as processes.
+
+use super::emit;
+use crate::cell::harness::{novel_object, placement_rng, random_placement, Cell, HarnessOptions};
+use crate::cell::plan::{Databases, METHODS};
+use crate::cell::setup::TrialSetup;
+use crate::cell::{span_ms, stop_requested, StageArgs, SYSTEM_IPC_PREFIX};
+use crate::config::CellConfig;
+use crate::ipc::{monotonic_now_ns, Domain, Stage, TrialRequest, TrialResult};
+use crate::mesh::procedural::Category;
+use crate::trial::TrialLog;
+use anyhow::Context;
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+/// Where the cell's IPC lives and its run directory (shared by the cell commands).
+#[derive(Debug, Clone, Args)]
+pub struct CellLocation {
+    /// Cell instance name.
+    #[arg(long, default_value = crate::cell::DEFAULT_INSTANCE)]
+    pub instance: String,
+    /// Root directory of the IPC domain (default: /run/graspcell when writable, else
+    /// $XDG_RUNTIME_DIR/graspcell, else /tmp/graspcell-UID).
+    #[arg(long, value_name = "DIR")]
+    pub ipc_root: Option<PathBuf>,
+    /// Directory of per-trial setup files and the default trial log.
+    #[arg(long, default_value = "run")]
+    pub run_dir: PathBuf,
+}
+
+impl CellLocation {
+    fn stage_args(&self, config: &Path) -> StageArgs {
+        StageArgs {
+            config: config.to_path_buf(),
+            instance: self.instance.clone(),
+            ipc_root: self.ipc_root.clone(),
+            ipc_prefix: SYSTEM_IPC_PREFIX.into(),
+            run_dir: self.run_dir.clone(),
+        }
+    }
+}
+
+/// What every trial of a demo or campaign asks for.
+#[derive(Debug, Clone, Args)]
+pub struct TrialKind {
+    /// Object category (a database under --db-dir).
+    #[arg(long, default_value = "mug")]
+    pub category: String,
+    /// Task (`top`, `side`, `handle` for mugs).
+    #[arg(long, default_value = "top")]
+    pub task: String,
+    /// Directory of the category databases.
+    #[arg(long, default_value = "db")]
+    pub db_dir: PathBuf,
+}
+
+/// Options of `cell demo`.
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Trials to run, each on a new novel object at a random placement.
+    #[arg(long, default_value_t = 5)]
+    pub trials: usize,
+    #[command(flatten)]
+    pub kind: TrialKind,
+    /// Planning method: laplace, gaussian, gaussian-r or best-single.
+    #[arg(long, default_value = "laplace")]
+    pub method: String,
+    /// Seed of objects, placements and noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Keep setup files and the trial log here (default: a temporary directory,
+    /// removed at the end).
+    #[arg(long)]
+    pub run_dir: Option<PathBuf>,
+    /// How long the executor holds each lifted object (s).
+    #[arg(long, default_value_t = 0.3)]
+    pub hold_s: f64,
+    /// Print one JSON document instead of lines.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Options of `cell campaign`.
+#[derive(Debug, Args)]
+pub struct CampaignArgs {
+    #[command(flatten)]
+    pub kind: TrialKind,
+    /// Novel objects.
+    #[arg(long, default_value_t = 6)]
+    pub objects: usize,
+    /// Placements per object.
+    #[arg(long, default_value_t = 5)]
+    pub placements: u32,
+    /// Methods, comma-separated; every one runs on every object and placement.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "best-single,gaussian-r,laplace"
+    )]
+    pub methods: Vec<String>,
+    /// The trial log (a campaign already in it is resumed: graded trials are kept).
+    #[arg(long, default_value = "run/campaign.sqlite")]
+    pub log: PathBuf,
+    /// Campaign id (default: `<category>-<task>-seed<seed>`).
+    #[arg(long)]
+    pub campaign: Option<String>,
+    /// Seed of objects, placements and noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Directory of setup files.
+    #[arg(long, default_value = "run/campaign")]
+    pub run_dir: PathBuf,
+    /// How long the executor holds each lifted object (s).
+    #[arg(long, default_value_t = 0.3)]
+    pub hold_s: f64,
+    /// Print one JSON document instead of lines.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Options of `cell run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub location: CellLocation,
+    /// Directory of the category databases.
+    #[arg(long, default_value = "db")]
+    pub db_dir: PathBuf,
+    /// The trial log (default: `<run dir>/trials.sqlite`).
+    #[arg(long)]
+    pub log: Option<PathBuf>,
+    /// How long the executor holds each lifted object (s).
+    #[arg(long, default_value_t = 2.0)]
+    pub hold_s: f64,
+}
+
+/// Options of `cell trial`.
+#[derive(Debug, Args)]
+pub struct TrialArgs {
+    #[command(flatten)]
+    pub location: CellLocation,
+    /// Object category.
+    #[arg(long)]
+    pub category: String,
+    /// Task.
+    #[arg(long)]
+    pub task: String,
+    /// Planning method: laplace, gaussian, gaussian-r or best-single.
+    #[arg(long, default_value = "laplace")]
+    pub method: String,
+    /// With a simulated camera: seed of the novel object, its placement and noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Longest wait for the result (s).
+    #[arg(long, default_value_t = 180.0)]
+    pub timeout_s: f64,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One trial's line of output.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrialLine {
+    /// Trial id.
+    pub trial_id: u64,
+    /// Object name.
+    pub object: String,
+    /// Placement index.
+    pub placement: u32,
+    /// Object position x y (m) and yaw (rad).
+    pub placement_xy_yaw: [f64; 3],
+    /// Method.
+    pub method: String,
+    /// Grade (`success`, `partial`, `failure`), or `lost` when the log died.
+    pub grade: String,
+    /// Cause of a non-success.
+    pub cause: Option<String>,
+    /// Snapshot to the first grasp command (ms).
+    pub snapshot_to_grasp_command_ms: f64,
+    /// Request to snapshot published (ms).
+    pub capture_ms: f64,
+    /// Snapshot to fits (ms).
+    pub perceive_ms: f64,
+    /// Fits to plan (ms).
+    pub plan_ms: f64,
+    /// Plan to the end of execution (ms).
+    pub execute_ms: f64,
+    /// Request to result (ms).
+    pub total_ms: f64,
+}
+
+impl TrialLine {
+    fn new(setup: &TrialSetup, method: &str, result: Option<&TrialResult>) -> TrialLine {
+        let pose = &setup.placement.base_from_object;
+        let yaw = pose.rpy.map_or(0.0, |r| r[2]);
+        let ms = |s: f64| s * 1e3;
+        let (grade, cause, t) = match result {
+            Some(r) => {
+                let grade = r
+                    .grade()
+                    .map_or("?".into(), |g| format!("{g:?}").to_lowercase());
+                let cause = r
+                    .cause()
+                    .ok()
+                    .filter(|c| *c != crate::ipc::FailureCause::None)
+                    .map(|c| format!("{c:?}"));
+                (grade, cause, r.timings)
+            }
+            None => ("lost".to_string(), None, crate::ipc::Timings::default()),
+        };
+        TrialLine {
+            trial_id: setup.trial_id,
+            object: setup.object.name.clone(),
+            placement: setup.placement.index,
+            placement_xy_yaw: [pose.xyz[0], pose.xyz[1], yaw],
+            method: method.to_string(),
+            grade,
+            cause,
+            snapshot_to_grasp_command_ms: ms(t.snapshot_to_grasp_command_s),
+            capture_ms: ms(t.capture_s),
+            perceive_ms: ms(t.perceive_s),
+            plan_ms: ms(t.plan_s),
+            execute_ms: ms(t.execute_s),
+            total_ms: ms(t.total_s),
+        }
+    }
+
+    fn text(&self) -> String {
+        let cause = self
+            .cause
+            .as_ref()
+            .map_or(String::new(), |c| format!(" ({c})"));
+        let command_ms = self.snapshot_to_grasp_command_ms - self.perceive_ms - self.plan_ms;
+        format!(
+            "trial {} {} #{} at ({:.3}, {:.3}) yaw {:+.2} {}: {}{}  snapshot->grasp command {:.0} ms [perceive {:.0}, plan {:.0}, to command {:.0}; capture {:.0}]  execute {:.1} s",
+            self.trial_id,
+            self.object,
+            self.placement,
+            self.placement_xy_yaw[0],
+            self.placement_xy_yaw[1],
+            self.placement_xy_yaw[2],
+            self.method,
+            self.grade,
+            cause,
+            self.snapshot_to_grasp_command_ms,
+            self.perceive_ms,
+            self.plan_ms,
+            command_ms,
+            self.capture_ms,
+            self.execute_ms * 1e-3
+        )
+    }
+}
+
+/// Counts and the median end-to-end time of a set of trials.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    /// Trials run.
+    pub trials: usize,
+    /// Graded success.
+    pub success: usize,
+    /// Graded partial.
+    pub partial: usize,
+    /// Graded failure.
+    pub failure: usize,
+    /// Results lost (the log stage died).
+    pub lost: usize,
+    /// Median snapshot-to-grasp-command time over executed trials (ms).
+    pub median_snapshot_to_grasp_command_ms: Option<f64>,
+    /// Median perception time (ms).
+    pub median_perceive_ms: Option<f64>,
+    /// Median planning time (ms).
+    pub median_plan_ms: Option<f64>,
+}
+
+fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    })
+}
+
+impl Summary {
+    fn of(lines: &[TrialLine]) -> Summary {
+        let count = |g: &str| lines.iter().filter(|l| l.grade == g).count();
+        Summary {
+            trials: lines.len(),
+            success: count("success"),
+            partial: count("partial"),
+            failure: count("failure"),
+            lost: count("lost"),
+            median_snapshot_to_grasp_command_ms: median(
+                lines.iter().map(|l| l.snapshot_to_grasp_command_ms),
+            ),
+            median_perceive_ms: median(lines.iter().map(|l| l.perceive_ms)),
+            median_plan_ms: median(lines.iter().map(|l| l.plan_ms)),
+        }
+    }
+
+    fn text(&self) -> String {
+        let ms = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0} ms"));
+        format!(
+            "{} trials: {} success, {} partial, {} failure{}; median snapshot->grasp command {} (perceive {}, plan {})\n",
+            self.trials,
+            self.success,
+            self.partial,
+            self.failure,
+            if self.lost > 0 {
+                format!(", {} lost", self.lost)
+            } else {
+                String::new()
+            },
+            ms(self.median_snapshot_to_grasp_command_ms),
+            ms(self.median_perceive_ms),
+            ms(self.median_plan_ms)
+        )
+    }
+}
+
+fn check_method(method: &str) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        METHODS.contains(&method),
+        "--method {method:?}: unknown (use {})",
+        METHODS.join(", ")
+    );
+    Ok(())
+}
+
+fn progress(total: u64, json: bool) -> ProgressBar {
+    let bar = if json {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(total)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {elapsed} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.set_prefix("trials");
+    bar
+}
+
+/// A fresh isolated domain and run directory for one demo or campaign.
+fn private_domain(tag: &str) -> anyhow::Result<crate::ipc::domain::TemporaryDomain> {
+    Ok(Domain::temporary(tag)?)
+}
+
+/// Runs `cell demo`.
+pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
+    check_method(&args.method)?;
+    anyhow::ensure!(args.trials > 0, "--trials must be at least 1");
+    let config = CellConfig::load(config_path)?;
+    let category: Category = args.kind.category.parse()?;
+    let mut dbs = Databases::new(&args.kind.db_dir);
+    let db = dbs.get(&args.kind.category)?.clone();
+    let temp_run = args.run_dir.is_none();
+    let run_dir = args.run_dir.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("graspcell-demo-{}", std::process::id()))
+    });
+    let domain = private_domain("demo")?;
+    let stage = StageArgs {
+        config: config_path.to_path_buf(),
+        instance: domain.services().instance().to_string(),
+        ipc_root: Some(domain.root()),
+        ipc_prefix: domain.prefix(),
+        run_dir: run_dir.clone(),
+    };
+    let mut options = HarnessOptions::demo(stage)?;
+    options.db_dir = args.kind.db_dir.clone();
+    options.hold_s = args.hold_s;
+    crate::cell::install_stop_handler();
+    eprintln!("starting the cell (5 stages, simulated arm and hand) ...");
+    let mut cell = Cell::start(options, (*domain).clone()).context("starting the cell")?;
+    let bar = progress(args.trials as u64, args.json);
+    let mut lines = Vec::new();
+    for i in 0..args.trials {
+        if stop_requested() {
+            break;
+        }
+        cell.supervise()?;
+        let object = novel_object(category, args.seed, i as u64, &db);
+        let mut rng = placement_rng(args.seed, i as u64);
+        let setup = TrialSetup {
+            trial_id: cell.new_trial_id(),
+            category,
+            object,
+            placement: random_placement(&config, &mut rng, 0),
+            campaign_id: None,
+            noise_seed: args.seed.wrapping_mul(1000).wrapping_add(i as u64),
+            perception_seed: args.seed.wrapping_mul(1000).wrapping_add(i as u64),
+        };
+        bar.set_message(setup.object.name.clone());
+        let result = cell.run_trial(
+            Some(&setup),
+            setup.trial_id,
+            &args.kind.category,
+            &args.kind.task,
+            &args.method,
+            &mut |_| {},
+        )?;
+        let line = TrialLine::new(&setup, &args.method, result.as_ref());
+        if !args.json {
+            bar.suspend(|| println!("{}", line.text()));
+        }
+        bar.inc(1);
+        lines.push(line);
+    }
+    bar.finish_and_clear();
+    let leftover = cell.stop()?;
+    let removed = domain.remove().context("removing the demo's IPC domain")?;
+    tracing::info!(removed, "demo domain removed");
+    if temp_run {
+        let _ = std::fs::remove_dir_all(&run_dir);
+    }
+    let summary = Summary::of(&lines);
+    #[derive(Serialize)]
+    struct DemoOutput {
+        trials: Vec<TrialLine>,
+        summary: Summary,
+        leftover_shm_files: usize,
+    }
+    let out = DemoOutput {
+        trials: lines,
+        summary,
+        leftover_shm_files: leftover.len(),
+    };
+    emit(args.json, &out, |o| {
+        format!(
+            "{}stopped cleanly: {} leftover shared-memory files\n",
+            o.summary.text(),
+            o.leftover_shm_files
+        )
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Runs `cell campaign`.
+pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCode> {
+    for m in &args.methods {
+        check_method(m)?;
+    }
+    anyhow::ensure!(
+        args.objects > 0 && args.placements > 0 && !args.methods.is_empty(),
+        "--objects, --placements and --methods must not be empty"
+    );
+    let config = CellConfig::load(config_path)?;
+    let category: Category = args.kind.category.parse()?;
+    let mut dbs = Databases::new(&args.kind.db_dir);
+    let db = dbs.get(&args.kind.category)?.clone();
+    let campaign_id = args.campaign.clone().unwrap_or_else(|| {
+        format!(
+            "{}-{}-seed{}",
+            args.kind.category, args.kind.task, args.seed
+        )
+    });
+    // Resume: trials of this campaign already graded are not run again.
+    let mut done: HashSet<(String, u32, String)> = HashSet::new();
+    if args.log.exists() {
+        let log = TrialLog::open_existing(&args.log)?;
+        for t in log.trials()? {
+            if t.trial.campaign_id.as_deref() == Some(campaign_id.as_str()) && t.grading.is_some() {
+                done.insert((
+                    t.trial.object.name.clone(),
+                    t.trial.placement.index,
+                    t.trial.method.clone(),
+                ));
+            }
+        }
+    }
+    let mut plan = Vec::new();
+    for o in 0..args.objects {
+        let object = novel_object(category, args.seed, o as u64, &db);
+        let mut rng = placement_rng(args.seed, o as u64);
+        for p in 0..args.placements {
+            let placement = random_placement(&config, &mut rng, p);
+            for method in &args.methods {
+                if !done.contains(&(object.name.clone(), p, method.clone())) {
+                    // Same noise and perception seeds for every method of a placement.
+                    let seed = args.seed.wrapping_mul(1_000_003) ^ ((o as u64) << 16 | p as u64);
+                    plan.push((object.clone(), placement, method.clone(), seed));
+                }
+            }
+        }
+    }
+    let total = args.objects * args.placements as usize * args.methods.len();
+    eprintln!(
+        "campaign {campaign_id}: {} of {total} trials to run ({} already graded in {})",
+        plan.len(),
+        total - plan.len(),
+        args.log.display()
+    );
+    let domain = private_domain("campaign")?;
+    let stage = StageArgs {
+        config: config_path.to_path_buf(),
+        instance: domain.services().instance().to_string(),
+        ipc_root: Some(domain.root()),
+        ipc_prefix: domain.prefix(),
+        run_dir: args.run_dir.clone(),
+    };
+    let mut options = HarnessOptions::demo(stage)?;
+    options.db_dir = args.kind.db_dir.clone();
+    options.hold_s = args.hold_s;
+    options.log_path = args.log.clone();
+    crate::cell::install_stop_handler();
+    let lines = {
+        let mut cell = Cell::start(options, (*domain).clone()).context("starting the cell")?;
+        let lines = run_campaign_trials(&mut cell, &args, &campaign_id, category, &plan)?;
+        let leftover = cell.stop()?;
+        if !leftover.is_empty() {
+            tracing::warn!(files = leftover.len(), "shared memory left behind");
+        }
+        lines
+    };
+    domain.remove()?;
+    let summary = Summary::of(&lines);
+    let log = TrialLog::open_existing(&args.log)?;
+    let report = crate::trial::Report::from_trials(&log.trials()?, Some(&campaign_id));
+    #[derive(Serialize)]
+    struct CampaignOutput {
+        campaign_id: String,
+        log: PathBuf,
+        run: Vec<TrialLine>,
+        summary: Summary,
+        report: crate::trial::Report,
+    }
+    let out = CampaignOutput {
+        campaign_id,
+        log: args.log.clone(),
+        run: lines,
+        summary,
+        report,
+    };
+    emit(args.json, &out, |o| {
+        format!(
+            "{}\n{}{}",
+            o.summary.text(),
+            o.report.to_text(),
+            crate::trial::paper::comparison_text(&o.report)
+        )
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Runs the planned trials of a campaign; a lost result (the log stage died) is
+/// reported and the stage restarted, so the rerun of the campaign redoes the trial.
+fn run_campaign_trials(
+    cell: &mut Cell,
+    args: &CampaignArgs,
+    campaign_id: &str,
+    category: Category,
+    plan: &[(
+        crate::trial::ObjectRef,
+        crate::trial::Placement,
+        String,
+        u64,
+    )],
+) -> anyhow::Result<Vec<TrialLine>> {
+    let bar = progress(plan.len() as u64, args.json);
+    let mut lines = Vec::new();
+    for (object, placement, method, seed) in plan {
+        if stop_requested() {
+            break;
+        }
+        cell.supervise()?;
+        let setup = TrialSetup {
+            trial_id: cell.new_trial_id(),
+            category,
+            object: object.clone(),
+            placement: *placement,
+            campaign_id: Some(campaign_id.to_string()),
+            noise_seed: *seed,
+            perception_seed: *seed,
+        };
+        bar.set_message(format!("{} #{} {method}", object.name, placement.index));
+        let result = cell.run_trial(
+            Some(&setup),
+            setup.trial_id,
+            &args.kind.category,
+            &args.kind.task,
+            method,
+            &mut |_| {},
+        )?;
+        let line = TrialLine::new(&setup, method, result.as_ref());
+        if !args.json {
+            bar.suspend(|| println!("{}", line.text()));
+        }
+        bar.inc(1);
+        lines.push(line);
+    }
+    bar.finish_and_clear();
+    Ok(lines)
+}
+
+/// Runs `cell run`: the cell with the configured backends in the system domain,
+/// until SIGINT/SIGTERM; stages that exit are restarted.
+pub fn run(config_path: &Path, args: RunArgs) -> anyhow::Result<ExitCode> {
+    let config = CellConfig::load(config_path)?;
+    let stage = args.location.stage_args(config_path);
+    let domain = stage.domain()?;
+    let mut options = HarnessOptions::demo(stage)?;
+    options.db_dir = args.db_dir.clone();
+    options.hold_s = args.hold_s;
+    if let Some(log) = &args.log {
+        options.log_path = log.clone();
+    }
+    options.simulated_devices = config.fri.backend == "sim";
+    crate::cell::install_stop_handler();
+    let mut cell = Cell::start(options, domain.clone()).context("starting the cell")?;
+    eprintln!(
+        "cell {} running (IPC under {}); send trials with `cell trial`; Ctrl-C stops",
+        domain.services().instance(),
+        domain.root().display()
+    );
+    while !stop_requested() {
+        std::thread::sleep(Duration::from_millis(200));
+        cell.supervise()?;
+    }
+    let leftover = cell.stop()?;
+    eprintln!("stopped: {} leftover shared-memory files", leftover.len());
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Runs `cell trial`: one request to a running cell, then its result.
+pub fn trial(config_path: &Path, args: TrialArgs) -> anyhow::Result<ExitCode> {
+    check_method(&args.method)?;
+    anyhow::ensure!(
+        args.timeout_s.is_finite() && args.timeout_s > 0.0,
+        "--timeout-s {}: must be a finite number > 0",
+        args.timeout_s
+    );
+    let config = CellConfig::load(config_path)?;
+    let stage = args.location.stage_args(config_path);
+    let domain = stage.domain()?;
+    let node = Stage::start(&domain, "operator")?;
+    let results = node.subscriber::<TrialResult>()?;
+    let requests = node.publisher::<TrialRequest>()?;
+    anyhow::ensure!(
+        node.stage_status("log")? == crate::ipc::StageStatus::Alive,
+        "no cell {} running under {} (start it with `cell run`)",
+        domain.services().instance(),
+        domain.root().display()
+    );
+    let trial_id = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(1, |d| d.as_millis() as u64);
+    let mut setup_written = None;
+    if config.camera.backend == "sim" {
+        let category: Category = args.category.parse()?;
+        let mut dbs = Databases::new(Path::new("db"));
+        let db = dbs.get(&args.category)?;
+        let mut rng = placement_rng(args.seed, trial_id);
+        let setup = TrialSetup {
+            trial_id,
+            category,
+            object: novel_object(category, args.seed, trial_id % 1000, db),
+            placement: random_placement(&config, &mut rng, 0),
+            campaign_id: None,
+            noise_seed: args.seed,
+            perception_seed: args.seed,
+        };
+        setup.write(&args.location.run_dir)?;
+        setup_written = Some(setup);
+    }
+    let request = TrialRequest::new(
+        trial_id,
+        monotonic_now_ns(),
+        &args.category,
+        &args.task,
+        &args.method,
+    )?;
+    let reached = requests.send(&request)?;
+    tracing::info!(trial_id, reached, "trial request sent");
+    let result = results
+        .receive_timeout(Duration::from_secs_f64(args.timeout_s))?
+        .filter(|r| r.trial_id == trial_id);
+    let Some(result) = result else {
+        anyhow::bail!("trial {trial_id}: no result within {} s", args.timeout_s);
+    };
+    let line = match &setup_written {
+        Some(setup) => TrialLine::new(setup, &args.method, Some(&result)),
+        None => {
+            let t = result.timings;
+            TrialLine {
+                trial_id,
+                object: "(real object)".into(),
+                placement: 0,
+                placement_xy_yaw: [f64::NAN; 3],
+                method: args.method.clone(),
+                grade: result
+                    .grade()
+                    .map_or("?".into(), |g| format!("{g:?}").to_lowercase()),
+                cause: result.cause().ok().map(|c| format!("{c:?}")),
+                snapshot_to_grasp_command_ms: t.snapshot_to_grasp_command_s * 1e3,
+                capture_ms: t.capture_s * 1e3,
+                perceive_ms: t.perceive_s * 1e3,
+                plan_ms: t.plan_s * 1e3,
+                execute_ms: t.execute_s * 1e3,
+                total_ms: span_ms(request.stamp_ns, result.stamp_ns),
+            }
+        }
+    };
+    emit(args.json, &line, |l| format!("{}\n", l.text()))?;
+    Ok(ExitCode::SUCCESS)
+}
