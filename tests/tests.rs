@@ -10,6 +10,7 @@ mod fri;
 mod grasp;
 mod ipc;
 mod objects;
+mod perceive;
 mod plan;
 mod quality;
 mod shipped_files;

@@ -12,6 +12,7 @@ mod fri;
 pub mod ipc;
 mod objects;
 mod output;
+mod perceive;
 mod plan;
 mod quality;
 mod robot;
@@ -74,6 +75,12 @@ pub enum Command {
     /// Benchmarks that print JSON: medians and ratios measured in one run.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Segment the object out of a camera snapshot: table plane removed, the cluster
+    /// nearest the workspace centre, written in the robot base frame.
+    Segment(perceive::SegmentArgs),
+    /// Register every model onto a segmented object: FPFH + RANSAC + ICP; per model
+    /// the transform, fitting error eps and sigma, inlier fraction, RMSE, time.
+    Register(perceive::RegisterArgs),
     /// Helper process of tests and benchmarks (internal).
     #[command(hide = true)]
     IpcPeer(ipc::PeerArgs),
@@ -114,6 +121,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Train(args) => train::run(&cli.config, args),
         Command::Bench(which) => bench::run(&cli.config, which),
         Command::IpcPeer(args) => ipc::run_peer(args),
+        Command::Segment(args) => perceive::segment(&cli.config, args),
+        Command::Register(args) => perceive::register(&cli.config, args),
     }
 }
 
