@@ -32,6 +32,9 @@ pub struct IcpSettings {
     pub converge_translation_m: f64,
     /// ... and rotates less than this (rad).
     pub converge_rotation_rad: f64,
+    /// With target normals: pairs whose normals' cosine is below this are rejected
+    /// (both sides of a thin wall are near each other but face opposite ways).
+    pub min_normal_cos: f32,
 }
 
 /// The outcome of [`icp`].
@@ -68,8 +71,10 @@ pub fn rigid_fit(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Option<Pose> {
 /// Refines `start` (`model_from_target`) so that `target` points, moved into the
 /// model frame, lie on the model (`model_points` with unit `model_normals`).
 /// `nearest(p)` returns the index of the model point nearest `p` (model frame).
+/// With `target_normals`, pairs whose normals disagree are rejected.
 pub fn icp(
     target: &[Point3<f32>],
+    target_normals: Option<&[Vector3<f32>]>,
     model_points: &[Point3<f32>],
     model_normals: &[Vector3<f32>],
     nearest: impl Fn(&Point3<f32>) -> Option<usize>,
@@ -92,10 +97,15 @@ pub fn icp(
         src.clear();
         dst.clear();
         nrm.clear();
-        for t in target {
+        for (i, t) in target.iter().enumerate() {
             let p = pose_f * t;
             let Some(j) = nearest(&p) else { continue };
             let q = model_points[j];
+            if let Some(normals) = target_normals {
+                if (pose_f.rotation * normals[i]).dot(&model_normals[j]) < settings.min_normal_cos {
+                    continue;
+                }
+            }
             if ((p - q).norm_squared() as f64) <= max_d2 {
                 src.push(p.cast::<f64>());
                 dst.push(q.cast::<f64>());
@@ -201,9 +211,11 @@ mod tests {
                 metric,
                 converge_translation_m: 1e-7,
                 converge_rotation_rad: 1e-7,
+                min_normal_cos: 0.0,
             };
             let r = icp(
                 &target,
+                None,
                 &pts,
                 &nrm,
                 |p| index.nearest(p).map(|(j, _)| j),

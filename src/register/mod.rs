@@ -142,6 +142,11 @@ pub struct RegisterParams {
     pub icp_max_distance_m: f64,
     /// The last exact ICP pass rejects pairs farther apart than this (m).
     pub icp_fine_distance_m: f64,
+    /// ICP rejects pairs whose normals' cosine is below this.
+    pub icp_min_normal_cos: f64,
+    /// A model point this far (m) in front of the surface the sensor saw along its
+    /// ray counts as seen through.
+    pub seen_through_margin_m: f64,
     /// ICP metric.
     pub icp_metric: IcpMetric,
     /// Target points used to score hypotheses.
@@ -194,6 +199,8 @@ impl Default for RegisterParams {
             icp_iterations: 30,
             icp_max_distance_m: 0.01,
             icp_fine_distance_m: 0.004,
+            icp_min_normal_cos: 0.5,
+            seen_through_margin_m: 0.005,
             icp_metric: IcpMetric::PointToPlane,
             score_points: 400,
             unseen_weight: 1.0,
@@ -227,6 +234,7 @@ impl RegisterParams {
             ("inlier_distance_m", self.inlier_distance_m),
             ("max_scale_ratio", self.max_scale_ratio),
             ("range_bin_m", self.range_bin_m),
+            ("seen_through_margin_m", self.seen_through_margin_m),
         ];
         for (name, value) in positive {
             if !(value > 0.0 && value.is_finite()) {
@@ -586,10 +594,12 @@ pub struct RegisterTimings {
 struct PreparedTarget {
     /// All valid points.
     all: Vec<Point3<f32>>,
-    /// ICP cloud.
+    /// ICP cloud and its normals (towards the sensor).
     icp: Vec<Point3<f32>>,
-    /// Scoring subsample.
+    icp_normals: Vec<Vector3<f32>>,
+    /// Scoring subsample and its normals.
     score: Vec<Point3<f32>>,
+    score_normals: Vec<Vector3<f32>>,
     feature_points: Vec<Point3<f32>>,
     features: Vec<Fpfh>,
     feature_index: FeatureIndex,
@@ -603,12 +613,20 @@ fn ms(since: Instant) -> f64 {
     since.elapsed().as_secs_f64() * 1e3
 }
 
+/// Indices of every `len / n`-th item (all when there are fewer than `n`).
+fn subsample_indices(len: usize, n: usize) -> Vec<usize> {
+    if len <= n {
+        return (0..len).collect();
+    }
+    (0..n).map(|k| k * len / n).collect()
+}
+
 /// Every `len / n`-th point (all when there are fewer than `n`).
 fn subsample(points: &[Point3<f32>], n: usize) -> Vec<Point3<f32>> {
-    if points.len() <= n {
-        return points.to_vec();
-    }
-    (0..n).map(|k| points[k * points.len() / n]).collect()
+    subsample_indices(points.len(), n)
+        .into_iter()
+        .map(|i| points[i])
+        .collect()
 }
 
 fn prepare_target(
@@ -670,14 +688,27 @@ fn prepare_target(
     );
     let feature_index = FeatureIndex::new(&features);
     timings.fpfh_ms = ms(t2);
+    let t3 = Instant::now();
+    let icp_tree = KdIndex::new(&icp_cloud.points);
+    let icp_normals = estimate_normals(
+        &icp_cloud.points,
+        &icp_tree,
+        params.normal_k,
+        params.normal_radius_m as f32,
+        Orientation::TowardsViewpoint(viewpoint),
+    );
+    timings.normals_ms += ms(t3);
+    let picks = subsample_indices(icp_cloud.len(), params.score_points);
     Ok(PreparedTarget {
+        score_normals: picks.iter().map(|&i| icp_normals[i]).collect(),
+        icp_normals,
         extent_m: bbox_diagonal(&valid.points),
         range_image: visibility::RangeImage::new(
             &valid.points,
             viewpoint,
             params.range_bin_m as f32,
         ),
-        score: subsample(&icp_cloud.points, params.score_points),
+        score: picks.iter().map(|&i| icp_cloud.points[i]).collect(),
         icp: icp_cloud.points,
         all: valid.points,
         feature_points: feature_cloud.points,
@@ -913,6 +944,7 @@ fn register_one(
         metric: params.icp_metric,
         converge_translation_m: 1e-4,
         converge_rotation_rad: 1e-3,
+        min_normal_cos: params.icp_min_normal_cos as f32,
     };
     let cap = params.icp_max_distance_m;
     let mut candidates: Vec<Candidate> = starts
@@ -920,6 +952,7 @@ fn register_one(
         .map(|start| {
             let r = icp(
                 &target.score,
+                Some(&target.score_normals),
                 &model.points,
                 &model.normals,
                 |p| Some(model.field.nearest(p)),
@@ -938,7 +971,7 @@ fn register_one(
                         model,
                         &r.model_from_target,
                         (model.points.len() / 500).max(1),
-                        cap,
+                        params.seen_through_margin_m,
                     ),
                 iterations: r.iterations,
             }
@@ -963,6 +996,7 @@ fn register_one(
         metric: params.icp_metric,
         converge_translation_m: 1e-5,
         converge_rotation_rad: 1e-4,
+        min_normal_cos: params.icp_min_normal_cos as f32,
     };
     let nearest_exact = |p: &Point3<f32>| model.index.nearest(p).map_or(0, |(j, _)| j);
     let best = chosen
@@ -971,6 +1005,7 @@ fn register_one(
             let nearest = |p: &Point3<f32>| model.index.nearest(p).map(|(j, _)| j);
             let wide = icp(
                 &target.icp,
+                Some(&target.icp_normals),
                 &model.points,
                 &model.normals,
                 nearest,
@@ -981,6 +1016,7 @@ fn register_one(
             // silhouette and surface the model lacks do not pull the fit.
             let mut r = icp(
                 &target.icp,
+                Some(&target.icp_normals),
                 &model.points,
                 &model.normals,
                 nearest,
@@ -994,7 +1030,7 @@ fn register_one(
             tracing::debug!(
                 model = name,
                 fit = truncated_cost(&target.icp, model, &r.model_from_target, cap, nearest_exact),
-                seen_through = seen_through(target, model, &r.model_from_target, 3, cap),
+                seen_through = seen_through(target, model, &r.model_from_target, 3, params.seen_through_margin_m),
                 target_from_model = ?crate::geometry::params_from_pose(&r.model_from_target.inverse()),
                 "refined candidate"
             );
@@ -1009,7 +1045,7 @@ fn register_one(
                             model,
                             &r.model_from_target,
                             (model.points.len() / 2000).max(1),
-                            cap,
+                            params.seen_through_margin_m,
                         ),
                 iterations: cand.iterations + r.iterations,
             }
