@@ -24,6 +24,7 @@ pub mod mesh;
 pub mod plan;
 pub mod ply;
 pub mod quality;
+pub mod register;
 pub mod robot;
 pub mod sim;
 pub mod stats;

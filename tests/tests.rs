@@ -12,6 +12,7 @@ mod fri;
 mod grasp;
 mod ipc;
 mod objects;
+mod perceive;
 mod plan;
 mod quality;
 mod shipped_files;

@@ -129,7 +129,7 @@ mod residuals;
 mod result_file;
 mod samples;
 pub mod sim_rig;
-mod so3;
+pub(crate) mod so3;
 mod solve;
 pub mod sphere_fit;
 pub mod synthetic;

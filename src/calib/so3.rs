@@ -5,7 +5,7 @@ use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 /// The rotation nearest (Frobenius) to `m`: the orthogonal polar factor `U Vᵀ` of
 /// `m = U S Vᵀ`, with the last singular direction flipped if needed so det = +1.
 /// This is also the maximiser of `tr(Rᵀ m)` over rotations.
-pub(super) fn project_to_so3(m: &Matrix3<f64>) -> UnitQuaternion<f64> {
+pub(crate) fn project_to_so3(m: &Matrix3<f64>) -> UnitQuaternion<f64> {
     let svd = m.svd(true, true);
     let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
         return UnitQuaternion::identity();

@@ -30,6 +30,8 @@ pub enum BenchCommand {
     Ipc(super::ipc::IpcBenchArgs),
     /// Grasp planning: median time for 7 models x 3 grasps with reachability, per kernel.
     Plan(super::plan::PlanBenchArgs),
+    /// Registration: one partial mug view (~6k and ~28k points) against 11 models; per-stage medians.
+    Register(super::perceive::RegisterBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -123,6 +125,7 @@ pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Quality(args) => super::quality::bench_grasp(config, args),
         BenchCommand::Ipc(args) => super::ipc::bench_ipc(args),
         BenchCommand::Plan(args) => super::plan::bench(config, args),
+        BenchCommand::Register(args) => super::perceive::bench(config, args),
     }
 }
 

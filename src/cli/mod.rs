@@ -13,6 +13,7 @@ mod fri;
 pub mod ipc;
 mod objects;
 mod output;
+mod perceive;
 mod plan;
 mod quality;
 mod robot;
@@ -86,6 +87,12 @@ pub enum Command {
     /// The paper's robot protocol in the simulated cell: novel objects x placements x
     /// methods, paired, graded by the simulated observer, resumable.
     Campaign(cell::CampaignArgs),
+    /// Segment the object out of a camera snapshot: table plane removed, the cluster
+    /// nearest the workspace centre, written in the robot base frame.
+    Segment(perceive::SegmentArgs),
+    /// Register every model onto a segmented object: FPFH + RANSAC + ICP; per model
+    /// the transform, fitting error eps and sigma, inlier fraction, RMSE, time.
+    Register(perceive::RegisterArgs),
     /// Helper process of tests and benchmarks (internal).
     #[command(hide = true)]
     IpcPeer(ipc::PeerArgs),
@@ -130,6 +137,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Run(args) => cell::run(&cli.config, args),
         Command::Trial(args) => cell::trial(&cli.config, args),
         Command::Campaign(args) => cell::campaign(&cli.config, args),
+        Command::Segment(args) => perceive::segment(&cli.config, args),
+        Command::Register(args) => perceive::register(&cli.config, args),
     }
 }
 

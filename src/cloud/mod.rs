@@ -1,9 +1,13 @@
 //! Point clouds: the camera's snapshot and the models' sampled surfaces.
 
 pub mod io;
+pub mod kdtree;
+pub mod normals;
 pub mod pcd;
 pub mod ply;
 pub mod sample;
+pub mod segment;
+pub mod voxel;
 
 use nalgebra::{Point3, Vector3};
 

@@ -1,0 +1,248 @@
+//! Iterative closest point with correspondence rejection: point-to-plane
+//! (linearised, Chen & Medioni) or point-to-point (Kabsch/Besl & McKay). The caller
+//! supplies the nearest-point lookup (a k-d tree for exact refinement, a
+//! [`super::field::NearestField`] for cheap coarse refinement).
+
+use crate::calib::so3::project_to_so3;
+use crate::geometry::Pose;
+use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use serde::{Deserialize, Serialize};
+
+/// The ICP error metric.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum IcpMetric {
+    /// Distance along the model point's normal.
+    #[default]
+    PointToPlane,
+    /// Euclidean distance between the paired points.
+    PointToPoint,
+}
+
+/// ICP settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IcpSettings {
+    /// Iteration limit.
+    pub max_iterations: usize,
+    /// Pairs farther apart than this are rejected (m).
+    pub max_distance_m: f64,
+    /// The metric.
+    pub metric: IcpMetric,
+    /// Stop when a step moves less than this (m) ...
+    pub converge_translation_m: f64,
+    /// ... and rotates less than this (rad).
+    pub converge_rotation_rad: f64,
+    /// With target normals: pairs whose normals' cosine is below this are rejected
+    /// (both sides of a thin wall are near each other but face opposite ways).
+    pub min_normal_cos: f32,
+}
+
+/// The outcome of [`icp`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IcpResult {
+    /// The refined `model_from_target`.
+    pub model_from_target: Pose,
+    /// Iterations run.
+    pub iterations: usize,
+    /// Pairs kept in the last iteration.
+    pub pairs: usize,
+    /// Whether a step fell below the convergence thresholds.
+    pub converged: bool,
+}
+
+/// The least-squares rigid motion `dst ≈ R src + t` (Kabsch) of paired points;
+/// `None` for fewer than three pairs.
+pub fn rigid_fit(src: &[Point3<f64>], dst: &[Point3<f64>]) -> Option<Pose> {
+    if src.len() < 3 || src.len() != dst.len() {
+        return None;
+    }
+    let n = src.len() as f64;
+    let mu_s = src.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
+    let mu_d = dst.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
+    let mut cross = nalgebra::Matrix3::<f64>::zeros();
+    for (s, d) in src.iter().zip(dst) {
+        cross += (d.coords - mu_d) * (s.coords - mu_s).transpose();
+    }
+    let rotation = project_to_so3(&cross);
+    let t = mu_d - rotation * mu_s;
+    Some(Isometry3::from_parts(Translation3::from(t), rotation))
+}
+
+/// Refines `start` (`model_from_target`) so that `target` points, moved into the
+/// model frame, lie on the model (`model_points` with unit `model_normals`).
+/// `nearest(p)` returns the index of the model point nearest `p` (model frame).
+/// With `target_normals`, pairs whose normals disagree are rejected.
+pub fn icp(
+    target: &[Point3<f32>],
+    target_normals: Option<&[Vector3<f32>]>,
+    model_points: &[Point3<f32>],
+    model_normals: &[Vector3<f32>],
+    nearest: impl Fn(&Point3<f32>) -> Option<usize>,
+    start: &Pose,
+    settings: &IcpSettings,
+) -> IcpResult {
+    let mut pose = *start;
+    let max_d2 = settings.max_distance_m * settings.max_distance_m;
+    let mut result = IcpResult {
+        model_from_target: pose,
+        iterations: 0,
+        pairs: 0,
+        converged: false,
+    };
+    let mut src = Vec::with_capacity(target.len());
+    let mut dst = Vec::with_capacity(target.len());
+    let mut nrm = Vec::with_capacity(target.len());
+    for iteration in 1..=settings.max_iterations {
+        let pose_f = pose.cast::<f32>();
+        src.clear();
+        dst.clear();
+        nrm.clear();
+        for (i, t) in target.iter().enumerate() {
+            let p = pose_f * t;
+            let Some(j) = nearest(&p) else { continue };
+            let q = model_points[j];
+            if let Some(normals) = target_normals {
+                if (pose_f.rotation * normals[i]).dot(&model_normals[j]) < settings.min_normal_cos {
+                    continue;
+                }
+            }
+            if ((p - q).norm_squared() as f64) <= max_d2 {
+                src.push(p.cast::<f64>());
+                dst.push(q.cast::<f64>());
+                nrm.push(model_normals[j].cast::<f64>());
+            }
+        }
+        result.iterations = iteration;
+        result.pairs = src.len();
+        if src.len() < 6 {
+            break;
+        }
+        let step = match settings.metric {
+            IcpMetric::PointToPlane => point_to_plane_step(&src, &dst, &nrm),
+            IcpMetric::PointToPoint => None,
+        }
+        .or_else(|| rigid_fit(&src, &dst));
+        let Some(step) = step else { break };
+        pose = step * pose;
+        result.model_from_target = pose;
+        if step.translation.vector.norm() < settings.converge_translation_m
+            && step.rotation.angle() < settings.converge_rotation_rad
+        {
+            result.converged = true;
+            break;
+        }
+    }
+    result
+}
+
+/// One linearised point-to-plane step: the small motion `(w, t)` minimising
+/// `sum ((p + w x p + t - q) . n)^2`; `None` when the system is singular (e.g. all
+/// pairs on one plane).
+fn point_to_plane_step(
+    src: &[Point3<f64>],
+    dst: &[Point3<f64>],
+    normals: &[Vector3<f64>],
+) -> Option<Pose> {
+    // Centre on the source centroid for conditioning.
+    let c = src.iter().map(|p| p.coords).sum::<Vector3<f64>>() / src.len() as f64;
+    let mut ata = Matrix6::<f64>::zeros();
+    let mut atb = Vector6::<f64>::zeros();
+    for ((p, q), n) in src.iter().zip(dst).zip(normals) {
+        let pc = p.coords - c;
+        let a = pc.cross(n);
+        let row = Vector6::new(a.x, a.y, a.z, n.x, n.y, n.z);
+        let r = (p - q).dot(n);
+        ata += row * row.transpose();
+        atb -= row * r;
+    }
+    // Reject near-singular systems (a plane or a cylinder leaves a free direction).
+    let eig = ata.symmetric_eigenvalues();
+    if eig.min() <= 1e-9 * eig.max().max(1e-300) {
+        return None;
+    }
+    let x = ata.cholesky()?.solve(&atb);
+    let rotation = UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], x[2]));
+    // p' = R (p - c) + c + t
+    let t = Vector3::new(x[3], x[4], x[5]) + c - rotation * c;
+    Some(Isometry3::from_parts(Translation3::from(t), rotation))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cloud::kdtree::KdIndex;
+
+    /// An ellipsoid-like blob with outward normals (no symmetry).
+    fn blob() -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
+        let n = 1500;
+        (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+                let s = (1.0 - z * z).sqrt();
+                let a = i as f32 * 2.399_963;
+                let (x, y) = (s * a.cos(), s * a.sin());
+                let (ax, ay, az) = (0.08, 0.05, 0.03);
+                let p = Point3::new(ax * x, ay * y, az * z);
+                let normal = Vector3::new(x / ax, y / ay, z / az).normalize();
+                (p, normal)
+            })
+            .unzip()
+    }
+
+    #[test]
+    fn both_metrics_recover_a_small_motion() {
+        let (pts, nrm) = blob();
+        let index = KdIndex::new(&pts);
+        let truth = Isometry3::from_parts(
+            Translation3::new(0.006, -0.004, 0.003),
+            UnitQuaternion::from_euler_angles(0.05, -0.04, 0.08),
+        );
+        // Target = the model seen through target_from_model = truth^-1, every 3rd point.
+        let target_from_model = truth.inverse().cast::<f32>();
+        let target: Vec<Point3<f32>> = pts
+            .iter()
+            .step_by(3)
+            .map(|p| target_from_model * p)
+            .collect();
+        for metric in [IcpMetric::PointToPlane, IcpMetric::PointToPoint] {
+            let settings = IcpSettings {
+                max_iterations: 60,
+                max_distance_m: 0.03,
+                metric,
+                converge_translation_m: 1e-7,
+                converge_rotation_rad: 1e-7,
+                min_normal_cos: 0.0,
+            };
+            let r = icp(
+                &target,
+                None,
+                &pts,
+                &nrm,
+                |p| index.nearest(p).map(|(j, _)| j),
+                &Pose::identity(),
+                &settings,
+            );
+            let (dp, dr) = crate::geometry::pose_error(&r.model_from_target, &truth);
+            assert!(dp < 1e-4 && dr < 1e-3, "{metric:?}: {dp} m {dr} rad");
+        }
+    }
+
+    #[test]
+    fn rigid_fit_recovers_exact_motion() {
+        let src: Vec<Point3<f64>> = vec![
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(0.1, 0.0, 0.0),
+            Point3::new(0.0, 0.2, 0.0),
+            Point3::new(0.0, 0.0, 0.3),
+        ];
+        let motion = Isometry3::from_parts(
+            Translation3::new(1.0, 2.0, 3.0),
+            UnitQuaternion::from_euler_angles(0.4, 0.2, -1.0),
+        );
+        let dst: Vec<Point3<f64>> = src.iter().map(|p| motion * p).collect();
+        let fit = rigid_fit(&src, &dst).unwrap();
+        let (dp, dr) = crate::geometry::pose_error(&fit, &motion);
+        assert!(dp < 1e-12 && dr < 1e-9);
+        assert!(rigid_fit(&src[..2], &dst[..2]).is_none());
+    }
+}

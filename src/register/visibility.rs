@@ -1,0 +1,169 @@
+//! Free-space reasoning for ranking poses: the target as the sensor saw it, a
+//! range image around the viewing direction, and the fraction of a placed model's
+//! points that lie clearly in front of the first surface the sensor saw along
+//! their ray (the sensor looked through where the model claims a surface).
+//!
+//! Distances from target to model cannot tell a mug from the same mug upside down
+//! when both cover the target's points; the upside-down mug's closed bottom then
+//! sits in front of the inside the camera saw, and this term sees it.
+
+use nalgebra::{Point3, Vector3};
+
+/// The nearest range the sensor measured per angular bin, seen from the viewpoint.
+#[derive(Debug, Clone)]
+pub struct RangeImage {
+    eye: Point3<f32>,
+    axes: [Vector3<f32>; 3],
+    /// Bin size in the image plane at unit depth (rad, approximately).
+    bin: f32,
+    origin: [f32; 2],
+    dims: [usize; 2],
+    /// Nearest range per bin (m); infinity where no point fell.
+    nearest_m: Vec<f32>,
+}
+
+impl RangeImage {
+    /// The range image of `points` seen from `eye`, with bins about `bin_m` wide at
+    /// the points' mean distance. `None` for no points or points at the eye.
+    pub fn new(points: &[Point3<f32>], eye: Point3<f32>, bin_m: f32) -> Option<RangeImage> {
+        let n = points.len();
+        if n == 0 {
+            return None;
+        }
+        let mean = points.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n as f32;
+        let z = (Point3::from(mean) - eye).try_normalize(1e-9)?;
+        let helper = if z.x.abs() < 0.9 {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        };
+        let x = z.cross(&helper).normalize();
+        let y = z.cross(&x);
+        let distance = (Point3::from(mean) - eye).norm().max(1e-3);
+        let bin = bin_m / distance;
+        let mut image = RangeImage {
+            eye,
+            axes: [x, y, z],
+            bin,
+            origin: [0.0; 2],
+            dims: [0; 2],
+            nearest_m: Vec::new(),
+        };
+        let projected: Vec<([f32; 2], f32)> =
+            points.iter().filter_map(|p| image.project(p)).collect();
+        if projected.is_empty() {
+            return None;
+        }
+        let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
+        for (uv, _) in &projected {
+            for k in 0..2 {
+                lo[k] = lo[k].min(uv[k]);
+                hi[k] = hi[k].max(uv[k]);
+            }
+        }
+        image.origin = [lo[0] - bin, lo[1] - bin];
+        image.dims = [
+            ((hi[0] - lo[0]) / bin) as usize + 3,
+            ((hi[1] - lo[1]) / bin) as usize + 3,
+        ];
+        // A degenerate spread (e.g. points stacked on one ray) cannot blow up memory.
+        if image.dims[0].saturating_mul(image.dims[1]) > 4_000_000 {
+            return None;
+        }
+        image.nearest_m = vec![f32::INFINITY; image.dims[0] * image.dims[1]];
+        for (uv, range) in projected {
+            if let Some(cell) = image.cell(uv) {
+                let slot = &mut image.nearest_m[cell];
+                *slot = slot.min(range);
+            }
+        }
+        Some(image)
+    }
+
+    /// Image-plane coordinates at unit depth and range of `p`; `None` behind the eye.
+    fn project(&self, p: &Point3<f32>) -> Option<([f32; 2], f32)> {
+        let d = p - self.eye;
+        let depth = d.dot(&self.axes[2]);
+        if depth <= 1e-6 {
+            return None;
+        }
+        Some((
+            [d.dot(&self.axes[0]) / depth, d.dot(&self.axes[1]) / depth],
+            d.norm(),
+        ))
+    }
+
+    fn cell(&self, uv: [f32; 2]) -> Option<usize> {
+        let u = (uv[0] - self.origin[0]) / self.bin;
+        let v = (uv[1] - self.origin[1]) / self.bin;
+        if !(u >= 0.0 && v >= 0.0) {
+            return None;
+        }
+        let (u, v) = (u as usize, v as usize);
+        (u < self.dims[0] && v < self.dims[1]).then_some(u + self.dims[0] * v)
+    }
+
+    /// Of `points` (target frame), the fraction lying more than `margin_m` in front
+    /// of the nearest surface seen along their ray, among those whose ray hit the
+    /// target at all.
+    pub fn seen_through_fraction(
+        &self,
+        points: impl Iterator<Item = Point3<f32>>,
+        margin_m: f32,
+    ) -> f64 {
+        let (mut covered, mut through) = (0usize, 0usize);
+        for p in points {
+            let Some((uv, range)) = self.project(&p) else {
+                continue;
+            };
+            let Some(cell) = self.cell(uv) else { continue };
+            let seen = self.nearest_m[cell];
+            if seen.is_finite() {
+                covered += 1;
+                if range + margin_m < seen {
+                    through += 1;
+                }
+            }
+        }
+        through as f64 / covered.max(1) as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_surface_in_front_of_the_seen_one_is_seen_through() {
+        // The sensor at the origin saw a wall at z = 1 m.
+        let wall: Vec<Point3<f32>> = (0..400)
+            .map(|i| {
+                Point3::new(
+                    (i % 20) as f32 * 0.005 - 0.05,
+                    (i / 20) as f32 * 0.005 - 0.05,
+                    1.0,
+                )
+            })
+            .collect();
+        let image = RangeImage::new(&wall, Point3::origin(), 0.006).unwrap();
+        let at = |z: f32| {
+            image.seen_through_fraction(
+                (0..100).map(move |i| {
+                    Point3::new(
+                        (i % 10) as f32 * 0.008 - 0.04,
+                        (i / 10) as f32 * 0.008 - 0.04,
+                        z,
+                    )
+                }),
+                0.01,
+            )
+        };
+        assert_eq!(at(0.9), 1.0);
+        assert_eq!(at(1.0), 0.0);
+        // Behind the wall: occluded, not a contradiction.
+        assert_eq!(at(1.2), 0.0);
+        // Off to the side, where the sensor saw nothing: no evidence either way.
+        let off = image.seen_through_fraction(std::iter::once(Point3::new(0.5, 0.0, 0.9)), 0.01);
+        assert_eq!(off, 0.0);
+    }
+}
