@@ -30,7 +30,7 @@ pub mod execute;
 pub mod harness;
 pub mod log;
 pub mod notify;
-
+pub mod perceive;
 pub mod plan;
 pub mod setup;
 
@@ -272,6 +272,28 @@ pub fn stage_main(
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// Loads the database of `category` from `db_dir/<category>/`, refusing names that
+/// are not category names (they could point outside `db_dir`).
+pub fn load_category(
+    db_dir: &Path,
+    category: &str,
+) -> Result<crate::category::CategoryDb, CellError> {
+    let valid = category
+        .bytes()
+        .all(|b| b.is_ascii_lowercase() || b == b'-' || b == b'_');
+    if category.is_empty() || !valid {
+        return Err(CellError::Invalid(format!(
+            "category {category:?}: not a category name"
+        )));
+    }
+    crate::category::CategoryDb::load(&db_dir.join(category)).map_err(|source| {
+        CellError::Category {
+            category: category.to_string(),
+            source,
+        }
+    })
 }
 
 /// Nanoseconds between two monotonic stamps as milliseconds (NaN when either is 0

@@ -56,20 +56,7 @@ impl Databases {
     /// The database of `category`, loaded once.
     pub fn get(&mut self, category: &str) -> Result<&CategoryDb, CellError> {
         if !self.loaded.contains_key(category) {
-            let valid = category
-                .bytes()
-                .all(|b| b.is_ascii_lowercase() || b == b'-' || b == b'_');
-            if category.is_empty() || !valid {
-                return Err(CellError::Invalid(format!(
-                    "category {category:?}: not a category name"
-                )));
-            }
-            let db = CategoryDb::load(&self.dir.join(category)).map_err(|source| {
-                CellError::Category {
-                    category: category.to_string(),
-                    source,
-                }
-            })?;
+            let db = super::load_category(&self.dir, category)?;
             self.loaded.insert(category.to_string(), db);
         }
         Ok(&self.loaded[category])
