@@ -11,7 +11,10 @@
 //!
 //! The checks run in order of cost, and within each the worst sample is reported:
 //! joint positions, velocities, accelerations; then palm height and workspace; then
-//! collision of every link with the table and with each other.
+//! collision of every link with the table and with each other. One exception: a
+//! trajectory that starts with only the hand touching the table (fingers closed
+//! onto it around a low object) may lift the hand off — the hand may touch the
+//! table while the palm is no lower than at the start; the arm never may.
 
 use super::arm::Arm;
 use crate::config::CellConfig;
@@ -222,8 +225,24 @@ impl<A: Arm> SafeArm<A> {
         let samples = self.samples(trajectory);
         self.check_joints(&samples)?;
         self.check_palm(&samples)?;
+        // A hand resting on the table (fingers closed onto it) may lift off: while the
+        // palm is no lower than at the start, only its touching the table is allowed.
+        let start = &samples[0].1.position;
+        let resting = self.robot.collision_at(start, hand).is_some()
+            && self
+                .robot
+                .collision_except_hand_on_table(start, hand)
+                .is_none();
+        let start_z = self.robot.arm().palm(start).translation.z;
         for (t_s, s) in &samples {
-            if let Some(collision) = self.robot.collision_at(&s.position, hand) {
+            let lifting_off =
+                resting && self.robot.arm().palm(&s.position).translation.z >= start_z - 1e-9;
+            let collision = if lifting_off {
+                self.robot.collision_except_hand_on_table(&s.position, hand)
+            } else {
+                self.robot.collision_at(&s.position, hand)
+            };
+            if let Some(collision) = collision {
                 return Err(SafetyError::Collision {
                     collision,
                     joints_rad: s.position,
@@ -522,5 +541,48 @@ mod tests {
             }
             other => panic!("{other}"),
         }
+    }
+
+    #[test]
+    fn a_hand_resting_on_the_table_may_lift_off_but_not_press_down() {
+        let arm = safe_arm();
+        let robot = shipped_robot();
+        let limits = arm.limits().joint_limits().unwrap();
+        let open = HandPose {
+            spread_rad: 0.0,
+            flex_rad: [0.0; 3],
+        };
+        let solve = |z: f64| {
+            let palm =
+                crate::geometry::pose_from_params(&[0.6, 0.0, z, std::f64::consts::PI, 0.0, 0.0]);
+            robot.ik.solve(&palm, &[OVER_TABLE]).unwrap().joints
+        };
+        // Palm down, lowered until the open fingers touch the table (nothing else).
+        let (mut z, mut resting) = (0.30, None);
+        while z > 0.06 {
+            let q = solve(z);
+            if robot.collision_at(&q, &open).is_some() {
+                assert_eq!(robot.collision_except_hand_on_table(&q, &open), None);
+                resting = Some((z, q));
+                break;
+            }
+            z -= 0.005;
+        }
+        let (z, on_table) = resting.expect("test setup: the fingers reach the table");
+        let above = solve(z + 0.08);
+        let lift = Trajectory::point_to_point(on_table, above, &limits).unwrap();
+        arm.check_with(&lift, &open).unwrap();
+        // Pressing further down is refused, and so is moving down onto the table.
+        let lower = solve(z - 0.01);
+        let press = Trajectory::point_to_point(on_table, lower, &limits).unwrap();
+        assert!(matches!(
+            arm.check_with(&press, &open),
+            Err(SafetyError::Collision { .. })
+        ));
+        let descend = Trajectory::point_to_point(above, on_table, &limits).unwrap();
+        assert!(matches!(
+            arm.check_with(&descend, &open),
+            Err(SafetyError::Collision { .. })
+        ));
     }
 }

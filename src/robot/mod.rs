@@ -308,6 +308,17 @@ impl Robot {
         self.collision.check(&self.link_poses(arm, hand))
     }
 
+    /// The first collision at this configuration other than the hand touching the
+    /// table (fingers closed onto it, a hand lifting off).
+    pub fn collision_except_hand_on_table(
+        &self,
+        arm: &ArmJoints,
+        hand: &HandPose,
+    ) -> Option<Collision> {
+        self.collision
+            .check_except_table(&self.link_poses(arm, hand), &self.hand_links)
+    }
+
     /// Whether the palm pose is reachable with the hand in `hand`; `seeds` are tried
     /// first (e.g. the current configuration, the previous solution).
     pub fn reach(
