@@ -144,6 +144,11 @@ fn one_trial_through_every_process_then_a_killed_stage_fails_the_trial_and_rejoi
     assert_eq!(row.trial.method, "laplace");
     let grading = row.grading.as_ref().expect("graded");
     assert_eq!(format!("{:?}", grading.grade), format!("{grade:?}"));
+    // The snapshot is kept, organised, for replay.
+    let snapshot = row.trial.snapshot_path.as_ref().expect("snapshot recorded");
+    let cloud = graspcell::cloud::io::read_cloud(snapshot).unwrap();
+    assert_eq!((cloud.width, cloud.height), (640, 480));
+    assert!(cloud.valid_points().count() > 100_000);
     drop(log);
 
     // 2. kill -9 of perception mid-trial: the trial fails with that cause, the arm holds.

@@ -24,11 +24,10 @@ use crate::cloud::PointCloud;
 use crate::config::CellConfig;
 use crate::geometry::Pose;
 use crate::ipc::{
-    monotonic_now_ns, wait_any, CloudSample, CloudTopic, Domain, FitStatus, Fits, ModelFit, Stage,
-    TrialRequest, Wakeable, MAX_FITS,
+    monotonic_now_ns, wait_any, CloudTopic, Domain, FitStatus, Fits, ModelFit, Stage, TrialRequest,
+    Wakeable, MAX_FITS,
 };
 use crate::register::{perceive, ModelSet, RegisterParams, RegistrationStatus};
-use nalgebra::Point3;
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 
@@ -67,21 +66,6 @@ impl ModelSets {
             self.loaded.insert(category.to_string(), set);
         }
         Ok(&self.loaded[category])
-    }
-}
-
-/// The cloud of a received snapshot (camera optical frame, organisation kept).
-pub fn sample_cloud(sample: &CloudSample) -> PointCloud {
-    let header = sample.header();
-    PointCloud {
-        points: sample
-            .points()
-            .iter()
-            .map(|&p| Point3::<f32>::from(p))
-            .collect(),
-        normals: None,
-        width: header.width,
-        height: header.height,
     }
 }
 
@@ -187,7 +171,7 @@ pub fn run(
                 tracing::error!(trial_id = sample.header().trial_id, "bad cloud: {e}");
                 continue;
             }
-            pending_clouds.insert(sample.header().trial_id, sample_cloud(&sample));
+            pending_clouds.insert(sample.header().trial_id, sample.to_cloud());
         }
         let ready: Vec<u64> = pending_clouds
             .keys()

@@ -1026,6 +1026,7 @@ pub fn run_udp(
         .map_err(|e| io("set read timeout on", e))?;
     std::thread::scope(|scope| {
         let receiver = scope.spawn(|| -> Result<(), SimError> {
+            crate::hw::realtime::request_device_cycle_priority("FRI sim receiver");
             let mut buf = [0u8; 2048];
             while !stop.load(Ordering::Relaxed) {
                 match socket.recv_from(&mut buf) {
@@ -1045,8 +1046,9 @@ pub fn run_udp(
             }
             Ok(())
         });
-        // The sending loop runs here; it ends at `stop`, at `until`, or when the
-        // receiver fails.
+        // The sending loop runs here (the robot's real-time cycle); it ends at `stop`,
+        // at `until`, or when the receiver fails.
+        crate::hw::realtime::request_device_cycle_priority("FRI sim sender");
         while !stop.load(Ordering::Relaxed) && !receiver.is_finished() {
             let now = clock.now();
             if until.is_some_and(|end| now >= end) {
