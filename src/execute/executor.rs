@@ -174,6 +174,22 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         &self.config
     }
 
+    /// Whether the hand has been woken, identified and initialised.
+    pub fn hand_ready(&self) -> bool {
+        self.hand_ready
+    }
+
+    /// Brings the hand up (wake, identify, initialise) ahead of the first grasp, so
+    /// that the grasp does not wait for it; needs the arm in command mode (the
+    /// fingers move while initialising). A no-op once the hand is up.
+    pub fn prepare_hand(&mut self) -> Result<(), ExecuteError> {
+        if self.hand_ready {
+            return Ok(());
+        }
+        self.check_arm(Phase::HandBringup)?;
+        self.bring_up_hand()
+    }
+
     /// Executes one grasp; the report says how it went (never panics on device
     /// faults: they end the run with a named error after stopping both devices).
     pub fn execute(&mut self, request: &ExecutionRequest) -> ExecutionReport {

@@ -10,6 +10,11 @@
 /// interrupt threads run at 50, so this stays just above them).
 pub const DEVICE_CYCLE_PRIORITY: i32 = 60;
 
+/// `SCHED_FIFO` priority of the executor's control thread: below the device cycle,
+/// above everything ordinary, so a control thread holding a driver's lock is never
+/// preempted by ordinary work while the cycle thread waits for it.
+pub const CONTROL_PRIORITY: i32 = 40;
+
 /// Puts the calling thread under `SCHED_FIFO` at `priority`; the OS error when it
 /// is not permitted or the priority is out of range.
 pub fn set_fifo_priority(priority: i32) -> std::io::Result<()> {
@@ -37,16 +42,21 @@ pub fn current_realtime_priority() -> Option<i32> {
         .then_some(param.sched_priority)
 }
 
-/// Asks for [`DEVICE_CYCLE_PRIORITY`] for thread `what` unless it already runs at a
-/// real-time priority at least as high (e.g. set by its systemd unit); logs the
-/// outcome.
+/// Asks for [`DEVICE_CYCLE_PRIORITY`] for thread `what` ([`request_priority`]).
 pub fn request_device_cycle_priority(what: &str) {
-    if let Some(priority) = current_realtime_priority().filter(|&p| p >= DEVICE_CYCLE_PRIORITY) {
-        tracing::debug!("{what}: keeps its real-time priority {priority}");
+    request_priority(what, DEVICE_CYCLE_PRIORITY);
+}
+
+/// Puts the calling thread (and the threads it starts later) under `SCHED_FIFO` at
+/// `priority`, unless it already runs at a real-time priority at least as high
+/// (e.g. set by its systemd unit); logs the outcome.
+pub fn request_priority(what: &str, priority: i32) {
+    if let Some(current) = current_realtime_priority().filter(|&p| p >= priority) {
+        tracing::debug!("{what}: keeps its real-time priority {current}");
         return;
     }
-    match set_fifo_priority(DEVICE_CYCLE_PRIORITY) {
-        Ok(()) => tracing::debug!("{what}: SCHED_FIFO priority {DEVICE_CYCLE_PRIORITY}"),
+    match set_fifo_priority(priority) {
+        Ok(()) => tracing::debug!("{what}: SCHED_FIFO priority {priority}"),
         Err(e) => tracing::info!(
             "{what}: no real-time priority ({e}); cycles may be missed under load (grant CAP_SYS_NICE or run under the systemd unit)"
         ),
