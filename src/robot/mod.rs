@@ -456,6 +456,24 @@ mod tests {
     }
 
     #[test]
+    fn the_wrist_bends_to_100_deg_without_self_collision_and_folds_into_the_forearm_at_the_limit() {
+        let robot = shipped_robot();
+        // Arm upright, A5 (index 5) bent both ways: the flange and hand clear the forearm.
+        for a5 in [-100f64, -60.0, 60.0, 100.0] {
+            let mut q = [0.0; 7];
+            q[5] = a5.to_radians();
+            assert_eq!(robot.collision_at(&q, &HandPose::OPEN), None, "A5 {a5} deg");
+        }
+        // A5 at its 120 deg limit folds the palm back onto the forearm.
+        let mut q = [0.0; 7];
+        q[5] = 2.09;
+        assert!(matches!(
+            robot.collision_at(&q, &HandPose::OPEN),
+            Some(Collision::SelfCollision { .. })
+        ));
+    }
+
+    #[test]
     fn joint_limits_are_named() {
         let robot = shipped_robot();
         let err = robot
