@@ -270,7 +270,10 @@ fn systemd_analyze_verify_passes_on_every_unit_with_the_binaries_installed() {
     for dir in [&units, &bin, &system] {
         std::fs::create_dir_all(dir).unwrap();
     }
-    for entry in std::fs::read_dir("/usr/lib/systemd/system").unwrap().flatten() {
+    for entry in std::fs::read_dir("/usr/lib/systemd/system")
+        .unwrap()
+        .flatten()
+    {
         let path = entry.path();
         if path.is_file() && !path.is_symlink() {
             std::fs::copy(&path, system.join(entry.file_name())).unwrap();

@@ -69,6 +69,22 @@ impl ModelSets {
     }
 }
 
+/// The categories of the databases under `db_dir` (directories with a
+/// `category.json`), sorted.
+pub fn categories(db_dir: &std::path::Path) -> Result<Vec<String>, CellError> {
+    let entries = std::fs::read_dir(db_dir).map_err(|source| CellError::Io {
+        path: db_dir.to_path_buf(),
+        source,
+    })?;
+    let mut names: Vec<String> = entries
+        .flatten()
+        .filter(|e| e.path().join("category.json").is_file())
+        .filter_map(|e| e.file_name().to_str().map(str::to_string))
+        .collect();
+    names.sort();
+    Ok(names)
+}
+
 /// Segments and registers one snapshot; the fits message for `trial_id`. A
 /// snapshot in which no object can be found gives fits with no model.
 pub fn perceive_trial(
@@ -140,6 +156,16 @@ pub fn run(
         params: RegisterParams::default(),
         loaded: HashMap::new(),
     };
+    // Every category's models are prepared before the stage reports ready, so no
+    // trial waits for them.
+    for category in categories(&options.db_dir)? {
+        let started = std::time::Instant::now();
+        if let Err(e) = sets.get(&category) {
+            tracing::error!("{e}");
+        } else {
+            tracing::info!(%category, ms = started.elapsed().as_secs_f64() * 1e3, "models ready");
+        }
+    }
     let stage = Stage::start(domain, "perceive")?;
     let fits_out = stage.publisher::<Fits>()?;
     let clouds = stage.cloud_subscriber(CloudTopic::Camera)?;
