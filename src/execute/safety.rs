@@ -169,26 +169,18 @@ impl SafetyLimits {
     }
 }
 
-/// The arm behind the safety layer: every trajectory is checked before it is sent.
-///
-/// Collision checks use the hand's current shape, which the owner keeps up to date
-/// with [`SafeArm::set_hand`].
-pub struct SafeArm<A> {
-    arm: A,
+/// The safety checks without an arm: what [`SafeArm`] enforces, for validating
+/// motions ahead of time (the planner checks the grasp's motions with it too).
+#[derive(Debug, Clone)]
+pub struct SafetyCheck {
     robot: Arc<Robot>,
     limits: SafetyLimits,
-    hand: HandPose,
 }
 
-impl<A: Arm> SafeArm<A> {
-    /// Wraps `arm`; the hand is assumed open until told otherwise.
-    pub fn new(arm: A, robot: Arc<Robot>, limits: SafetyLimits) -> SafeArm<A> {
-        SafeArm {
-            arm,
-            robot,
-            limits,
-            hand: HandPose::OPEN,
-        }
+impl SafetyCheck {
+    /// Checks of `robot`'s motions against `limits`.
+    pub fn new(robot: Arc<Robot>, limits: SafetyLimits) -> SafetyCheck {
+        SafetyCheck { robot, limits }
     }
 
     /// The limits enforced.
@@ -196,24 +188,9 @@ impl<A: Arm> SafeArm<A> {
         &self.limits
     }
 
-    /// The hand shape collision checks use.
-    pub fn hand(&self) -> HandPose {
-        self.hand
-    }
-
-    /// Sets the hand shape collision checks use.
-    pub fn set_hand(&mut self, hand: HandPose) {
-        self.hand = hand;
-    }
-
-    /// The wrapped arm, for reading only: status and stop never move it unsafely.
-    pub fn arm(&self) -> &A {
-        &self.arm
-    }
-
-    /// Checks `trajectory` with the current hand shape.
-    pub fn check(&self, trajectory: &Trajectory<JOINTS>) -> Result<(), SafetyError> {
-        self.check_with(trajectory, &self.hand)
+    /// The robot whose kinematics and collision model are used.
+    pub fn robot(&self) -> &Robot {
+        &self.robot
     }
 
     /// Checks `trajectory` with the hand shaped as `hand`.
@@ -251,12 +228,6 @@ impl<A: Arm> SafeArm<A> {
             }
         }
         Ok(())
-    }
-
-    /// Checks `trajectory`, then starts it on the arm.
-    pub fn start_trajectory(&self, trajectory: Trajectory<JOINTS>) -> Result<u64, SafeArmError> {
-        self.check(&trajectory)?;
-        Ok(self.arm.start_trajectory(trajectory)?)
     }
 
     /// Samples every `check_period_s` from 0, and the end.
@@ -374,6 +345,72 @@ impl<A: Arm> SafeArm<A> {
             Some((_, error)) => Err(error),
             None => Ok(()),
         }
+    }
+}
+
+/// The arm behind the safety layer: every trajectory is checked before it is sent.
+///
+/// Collision checks use the hand's current shape, which the owner keeps up to date
+/// with [`SafeArm::set_hand`].
+pub struct SafeArm<A> {
+    arm: A,
+    check: SafetyCheck,
+    hand: HandPose,
+}
+
+impl<A: Arm> SafeArm<A> {
+    /// Wraps `arm`; the hand is assumed open until told otherwise.
+    pub fn new(arm: A, robot: Arc<Robot>, limits: SafetyLimits) -> SafeArm<A> {
+        SafeArm {
+            arm,
+            check: SafetyCheck::new(robot, limits),
+            hand: HandPose::OPEN,
+        }
+    }
+
+    /// The limits enforced.
+    pub fn limits(&self) -> &SafetyLimits {
+        self.check.limits()
+    }
+
+    /// The checks applied to every trajectory.
+    pub fn safety(&self) -> &SafetyCheck {
+        &self.check
+    }
+
+    /// The hand shape collision checks use.
+    pub fn hand(&self) -> HandPose {
+        self.hand
+    }
+
+    /// Sets the hand shape collision checks use.
+    pub fn set_hand(&mut self, hand: HandPose) {
+        self.hand = hand;
+    }
+
+    /// The wrapped arm, for reading only: status and stop never move it unsafely.
+    pub fn arm(&self) -> &A {
+        &self.arm
+    }
+
+    /// Checks `trajectory` with the current hand shape.
+    pub fn check(&self, trajectory: &Trajectory<JOINTS>) -> Result<(), SafetyError> {
+        self.check.check_with(trajectory, &self.hand)
+    }
+
+    /// Checks `trajectory` with the hand shaped as `hand`.
+    pub fn check_with(
+        &self,
+        trajectory: &Trajectory<JOINTS>,
+        hand: &HandPose,
+    ) -> Result<(), SafetyError> {
+        self.check.check_with(trajectory, hand)
+    }
+
+    /// Checks `trajectory`, then starts it on the arm.
+    pub fn start_trajectory(&self, trajectory: Trajectory<JOINTS>) -> Result<u64, SafeArmError> {
+        self.check(&trajectory)?;
+        Ok(self.arm.start_trajectory(trajectory)?)
     }
 }
 
