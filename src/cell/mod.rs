@@ -296,6 +296,62 @@ pub fn load_category(
     })
 }
 
+/// Most trials whose request or input a stage keeps while waiting for the other.
+pub const PENDING_TRIALS: usize = 16;
+
+/// A stage's trial requests and its other input, paired by trial id: either may
+/// arrive first; the newest [`PENDING_TRIALS`] of each are kept while the other is
+/// awaited.
+#[derive(Debug)]
+pub struct ByTrial<T> {
+    requests: std::collections::BTreeMap<u64, crate::ipc::TrialRequest>,
+    inputs: std::collections::BTreeMap<u64, T>,
+}
+
+impl<T> Default for ByTrial<T> {
+    fn default() -> Self {
+        ByTrial {
+            requests: Default::default(),
+            inputs: Default::default(),
+        }
+    }
+}
+
+impl<T> ByTrial<T> {
+    /// A trial request arrived.
+    pub fn request(&mut self, request: crate::ipc::TrialRequest) {
+        self.requests.insert(request.trial_id, request);
+        trim(&mut self.requests);
+    }
+
+    /// The other input of trial `trial_id` arrived.
+    pub fn input(&mut self, trial_id: u64, input: T) {
+        self.inputs.insert(trial_id, input);
+        trim(&mut self.inputs);
+    }
+
+    /// Removes and returns the trials that have both, oldest first.
+    pub fn take_ready(&mut self) -> Vec<(crate::ipc::TrialRequest, T)> {
+        let ready: Vec<u64> = self
+            .inputs
+            .keys()
+            .filter(|id| self.requests.contains_key(id))
+            .copied()
+            .collect();
+        ready
+            .into_iter()
+            .filter_map(|id| Some((self.requests.remove(&id)?, self.inputs.remove(&id)?)))
+            .collect()
+    }
+}
+
+/// Keeps the newest [`PENDING_TRIALS`] entries.
+fn trim<T>(map: &mut std::collections::BTreeMap<u64, T>) {
+    while map.len() > PENDING_TRIALS {
+        map.pop_first();
+    }
+}
+
 /// Nanoseconds between two monotonic stamps as milliseconds (NaN when either is 0
 /// or they are out of order).
 pub fn span_ms(from_ns: u64, to_ns: u64) -> f64 {
@@ -309,6 +365,34 @@ pub fn span_ms(from_ns: u64, to_ns: u64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn requests_and_inputs_pair_by_trial_id_in_either_order_and_old_ones_go() {
+        let request = |id| crate::ipc::TrialRequest::new(id, 0, "mug", "top", "laplace").unwrap();
+        let mut pending = ByTrial::default();
+        pending.input(2, "cloud 2");
+        pending.request(request(1));
+        assert!(pending.take_ready().is_empty());
+        pending.request(request(2));
+        pending.input(1, "cloud 1");
+        let ready: Vec<(u64, &str)> = pending
+            .take_ready()
+            .into_iter()
+            .map(|(r, c)| (r.trial_id, c))
+            .collect();
+        assert_eq!(ready, [(1, "cloud 1"), (2, "cloud 2")]);
+        assert!(pending.take_ready().is_empty());
+        for id in 10..50 {
+            pending.request(request(id));
+        }
+        pending.input(10, "too late");
+        assert!(
+            pending.take_ready().is_empty(),
+            "trial 10's request was dropped"
+        );
+        pending.input(49, "newest");
+        assert_eq!(pending.take_ready().len(), 1);
+    }
 
     #[test]
     fn spans_need_both_stamps_in_order() {

@@ -16,9 +16,8 @@
 //! reproduced.
 
 use super::notify::{self, Watchdog};
-use super::plan::trim;
 use super::setup::TrialSetup;
-use super::{stop_requested, CellError, TICK};
+use super::{stop_requested, ByTrial, CellError, TICK};
 use crate::cloud::segment::SegmentParams;
 use crate::cloud::PointCloud;
 use crate::config::CellConfig;
@@ -28,7 +27,7 @@ use crate::ipc::{
     Wakeable, MAX_FITS,
 };
 use crate::register::{perceive, ModelSet, RegisterParams, RegistrationStatus};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::path::PathBuf;
 
 /// What perception needs besides the configuration.
@@ -172,8 +171,7 @@ pub fn run(
     let requests = stage.subscriber::<TrialRequest>()?;
     notify::ready("perceive waiting for snapshots");
     let mut watchdog = Watchdog::from_env();
-    let mut pending_requests: BTreeMap<u64, TrialRequest> = BTreeMap::new();
-    let mut pending_clouds: BTreeMap<u64, PointCloud> = BTreeMap::new();
+    let mut pending: ByTrial<PointCloud> = ByTrial::default();
     while !stop_requested() {
         watchdog.ping();
         let inputs: [&dyn Wakeable; 2] = [&requests, &clouds];
@@ -190,27 +188,17 @@ pub fn run(
                     tracing::error!(trial_id = r.trial_id, "{e}");
                 }
             }
-            pending_requests.insert(r.trial_id, r);
+            pending.request(r);
         }
         while let Some(sample) = clouds.try_receive()? {
             if let Err(e) = sample.validate() {
                 tracing::error!(trial_id = sample.header().trial_id, "bad cloud: {e}");
                 continue;
             }
-            pending_clouds.insert(sample.header().trial_id, sample.to_cloud());
+            pending.input(sample.header().trial_id, sample.to_cloud());
         }
-        let ready: Vec<u64> = pending_clouds
-            .keys()
-            .filter(|id| pending_requests.contains_key(id))
-            .copied()
-            .collect();
-        for trial_id in ready {
-            let (Some(request), Some(cloud)) = (
-                pending_requests.remove(&trial_id),
-                pending_clouds.remove(&trial_id),
-            ) else {
-                continue;
-            };
+        for (request, cloud) in pending.take_ready() {
+            let trial_id = request.trial_id;
             let seed = TrialSetup::read(&options.run_dir, trial_id)
                 .ok()
                 .flatten()
@@ -230,8 +218,6 @@ pub fn run(
             };
             fits_out.send(&fits)?;
         }
-        trim(&mut pending_requests);
-        trim(&mut pending_clouds);
     }
     notify::stopping();
     Ok(())

@@ -9,7 +9,7 @@
 //! (no usable fit), reachability (nothing reachable) or other (bad request).
 
 use super::notify::{self, Watchdog};
-use super::{stop_requested, CellError, TICK};
+use super::{stop_requested, ByTrial, CellError, TICK};
 use crate::category::CategoryDb;
 use crate::config::CellConfig;
 use crate::execute::{validate_grasp, ExecutionRequest, ExecutorConfig, SafetyCheck, SafetyLimits};
@@ -22,7 +22,7 @@ use crate::ipc::{
 use crate::plan::{plan, Kernel, ModelFit, PlanOptions, PlannedGrasp, Reachability};
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, Robot};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -251,9 +251,6 @@ pub fn plan_message(
     Ok(msg)
 }
 
-/// Most trials whose request or fits are kept while waiting for the other.
-const PENDING_TRIALS: usize = 16;
-
 /// Runs the plan stage until SIGTERM/SIGINT; databases come from `db_dir`.
 pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), CellError> {
     let robot = Arc::new(Robot::load(config)?);
@@ -270,8 +267,7 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
     let mut arm_now: ArmJoints = super::harness::HOME_JOINTS_RAD;
     notify::ready("plan waiting for fits");
     let mut watchdog = Watchdog::from_env();
-    let mut pending_requests: BTreeMap<u64, TrialRequest> = BTreeMap::new();
-    let mut pending_fits: BTreeMap<u64, Fits> = BTreeMap::new();
+    let mut pending: ByTrial<Fits> = ByTrial::default();
     while !stop_requested() {
         watchdog.ping();
         let inputs: [&dyn Wakeable; 2] = [&requests, &fits_sub];
@@ -281,26 +277,16 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
             Err(e) => return Err(e.into()),
         }
         while let Some(r) = requests.try_receive()? {
-            pending_requests.insert(r.trial_id, r);
+            pending.request(r);
         }
         while let Some(f) = fits_sub.try_receive()? {
-            pending_fits.insert(f.trial_id, f);
+            pending.input(f.trial_id, f);
         }
         while let Some(j) = joints_sub.try_receive()? {
             arm_now = j.joints.arm_rad;
         }
-        let ready: Vec<u64> = pending_fits
-            .keys()
-            .filter(|id| pending_requests.contains_key(id))
-            .copied()
-            .collect();
-        for trial_id in ready {
-            let (Some(request), Some(fits)) = (
-                pending_requests.remove(&trial_id),
-                pending_fits.remove(&trial_id),
-            ) else {
-                continue;
-            };
+        for (request, fits) in pending.take_ready() {
+            let trial_id = request.trial_id;
             let method = request.method().unwrap_or("?").to_string();
             let started = std::time::Instant::now();
             let planned =
@@ -327,18 +313,9 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
                 "plan published"
             );
         }
-        trim(&mut pending_requests);
-        trim(&mut pending_fits);
     }
     notify::stopping();
     Ok(())
-}
-
-/// Keeps the newest [`PENDING_TRIALS`] entries.
-pub(crate) fn trim<T>(map: &mut BTreeMap<u64, T>) {
-    while map.len() > PENDING_TRIALS {
-        map.pop_first();
-    }
 }
 
 #[cfg(test)]
@@ -354,10 +331,6 @@ mod tests {
         assert!(method_kernel("best-single").unwrap().1);
         assert!(!method_kernel("laplace").unwrap().1);
         assert!(method_kernel("nearest").is_none());
-        let mut map: BTreeMap<u64, u8> = (0..40).map(|i| (i, 0)).collect();
-        trim(&mut map);
-        assert_eq!(map.len(), PENDING_TRIALS);
-        assert_eq!(*map.keys().next().unwrap(), 40 - PENDING_TRIALS as u64);
     }
 
     /// A top-down grasp over the table at `xyz` with its pre-grasp 10 cm above.
