@@ -155,6 +155,71 @@ impl FeatureIndex {
     }
 }
 
+/// Squared Euclidean distance of two descriptors, in eight lanes so that it
+/// vectorises without reassociating floating-point sums.
+#[inline]
+fn distance2(a: &Fpfh, b: &Fpfh) -> f32 {
+    let mut acc = [0f32; 8];
+    for c in 0..FPFH_LEN / 8 {
+        for (l, slot) in acc.iter_mut().enumerate() {
+            let t = a[c * 8 + l] - b[c * 8 + l];
+            *slot += t * t;
+        }
+    }
+    let mut d = acc.iter().sum::<f32>();
+    for k in (FPFH_LEN / 8) * 8..FPFH_LEN {
+        let t = a[k] - b[k];
+        d += t * t;
+    }
+    d
+}
+
+/// Nearest neighbours between two descriptor sets in both directions, by one pass
+/// over all pairs (Euclidean): `forward[i]` is the `b` index nearest `a[i]`,
+/// `backward[j]` the `a` index nearest `b[j]`. Descriptors are 33-dimensional,
+/// where k-d trees degrade to a slower brute force; the pass is blocked so the
+/// inner loop vectorises. Ties go to the lower index. Empty when either set is.
+pub fn mutual_nearest(a: &[Fpfh], b: &[Fpfh]) -> (Vec<usize>, Vec<usize>) {
+    if a.is_empty() || b.is_empty() {
+        return (Vec::new(), Vec::new());
+    }
+    const BLOCK: usize = 64;
+    // Per block of `a`: its rows' best in `b`, and the block's best per `b` column.
+    let blocks: Vec<(Vec<(f32, usize)>, Vec<(f32, usize)>)> = a
+        .par_chunks(BLOCK)
+        .enumerate()
+        .map(|(blk, rows)| {
+            let mut row_best = vec![(f32::INFINITY, 0usize); rows.len()];
+            let mut col_best = vec![(f32::INFINITY, 0usize); b.len()];
+            for (j, fb) in b.iter().enumerate() {
+                for (r, fa) in rows.iter().enumerate() {
+                    let d = distance2(fa, fb);
+                    if d < row_best[r].0 {
+                        row_best[r] = (d, j);
+                    }
+                    if d < col_best[j].0 {
+                        col_best[j] = (d, blk * BLOCK + r);
+                    }
+                }
+            }
+            (row_best, col_best)
+        })
+        .collect();
+    let forward = blocks
+        .iter()
+        .flat_map(|(rows, _)| rows.iter().map(|&(_, j)| j))
+        .collect();
+    let mut backward = vec![(f32::INFINITY, 0usize); b.len()];
+    for (_, cols) in &blocks {
+        for (slot, &c) in backward.iter_mut().zip(cols) {
+            if c.0 < slot.0 {
+                *slot = c;
+            }
+        }
+    }
+    (forward, backward.into_iter().map(|(_, i)| i).collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -210,6 +275,32 @@ mod tests {
         // Not all equal: the ellipsoid's poles and equator differ.
         let spread: f32 = a[0].iter().zip(&a[200]).map(|(u, v)| (u - v).abs()).sum();
         assert!(spread > 5.0, "{spread}");
+    }
+
+    #[test]
+    fn mutual_nearest_agrees_with_the_tree() {
+        let (pts, nrm) = sphere(300, 0.05);
+        let pts: Vec<Point3<f32>> = pts
+            .iter()
+            .map(|p| Point3::new(p.x, p.y * 0.6, p.z * 0.8))
+            .collect();
+        let index = KdIndex::new(&pts);
+        let a = compute_fpfh(&pts, &nrm, &index, 0.02);
+        let b: Vec<Fpfh> = a[..200].iter().rev().copied().collect();
+        let (forward, backward) = mutual_nearest(&a, &b);
+        assert_eq!((forward.len(), backward.len()), (a.len(), b.len()));
+        let dist = |x: &Fpfh, y: &Fpfh| x.iter().zip(y).map(|(u, v)| (u - v).powi(2)).sum::<f32>();
+        let tb = FeatureIndex::new(&b);
+        for (i, &j) in forward.iter().enumerate() {
+            let k = tb.nearest(&a[i]).unwrap();
+            assert!((dist(&a[i], &b[j]) - dist(&a[i], &b[k])).abs() < 1e-3);
+        }
+        let ta = FeatureIndex::new(&a);
+        for (j, &i) in backward.iter().enumerate() {
+            let k = ta.nearest(&b[j]).unwrap();
+            assert!((dist(&b[j], &a[i]) - dist(&b[j], &a[k])).abs() < 1e-3);
+        }
+        assert!(mutual_nearest(&[], &b).0.is_empty());
     }
 
     #[test]

@@ -41,8 +41,8 @@ use crate::cloud::voxel::voxel_downsample;
 use crate::cloud::PointCloud;
 use crate::geometry::Pose;
 use crate::plan::ModelFit;
-use field::NearestField;
-use fpfh::{compute_fpfh, FeatureIndex, Fpfh};
+use field::SurfaceLookup;
+use fpfh::{compute_fpfh, mutual_nearest, Fpfh};
 use icp::{icp, rigid_fit, IcpMetric, IcpSettings};
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
 use rand::Rng;
@@ -130,12 +130,20 @@ pub struct RegisterParams {
     pub ransac_inlier_m: f64,
     /// Distinct RANSAC hypotheses kept.
     pub hypotheses: usize,
+    /// Target descriptors (a spread subsample) matched against each model's.
+    pub match_points: usize,
     /// Rotations about the table normal tried per hypothesis (1 = none).
     pub yaw_steps: usize,
+    /// Coarse (field) ICP iterations per start.
+    pub coarse_iterations: usize,
+    /// Best distinct starts refined further on the field.
+    pub polish_best: usize,
+    /// Further coarse ICP iterations of those.
+    pub polish_iterations: usize,
     /// Candidates refined with exact ICP.
     pub refine_best: usize,
-    /// Coarse (field) ICP iterations per candidate.
-    pub coarse_iterations: usize,
+    /// Most target points in exact ICP (a spread subsample of the ICP cloud).
+    pub icp_points: usize,
     /// Exact ICP iterations.
     pub icp_iterations: usize,
     /// ICP rejects pairs farther apart than this (m).
@@ -193,9 +201,13 @@ impl Default for RegisterParams {
             min_edge_m: 0.01,
             ransac_inlier_m: 0.006,
             hypotheses: 4,
-            yaw_steps: 8,
+            match_points: 300,
+            yaw_steps: 24,
+            coarse_iterations: 3,
+            polish_best: 8,
+            polish_iterations: 10,
             refine_best: 3,
-            coarse_iterations: 8,
+            icp_points: 600,
             icp_iterations: 30,
             icp_max_distance_m: 0.01,
             icp_fine_distance_m: 0.004,
@@ -250,7 +262,10 @@ impl RegisterParams {
             ("model_points", self.model_points, 10),
             ("hypotheses", self.hypotheses, 1),
             ("yaw_steps", self.yaw_steps, 1),
+            ("match_points", self.match_points, 3),
+            ("polish_best", self.polish_best, 1),
             ("refine_best", self.refine_best, 1),
+            ("icp_points", self.icp_points, 10),
             ("score_points", self.score_points, 10),
             ("min_target_points", self.min_target_points, 3),
             ("min_feature_points", self.min_feature_points, 3),
@@ -288,12 +303,15 @@ struct PreparedModel {
     /// ICP cloud (model frame) and its outward normals.
     points: Vec<Point3<f32>>,
     normals: Vec<Vector3<f32>>,
-    index: KdIndex,
-    field: NearestField,
+    /// Nearest points: the field (coarse) and the graph walk (exact, nearly).
+    lookup: SurfaceLookup,
+    /// A spread subsample of `points` for the visibility term.
+    sparse: Vec<Point3<f32>>,
     /// FPFH cloud and its descriptors.
     feature_points: Vec<Point3<f32>>,
     features: Vec<Fpfh>,
-    feature_index: FeatureIndex,
+    /// Centroid of `points`.
+    centre: Point3<f32>,
     /// Bounding-box diagonal (m).
     extent_m: f64,
 }
@@ -372,7 +390,7 @@ fn prepare_model(cloud: &PointCloud, params: &RegisterParams) -> Result<Prepared
         ));
     }
     let index = KdIndex::new(&points);
-    let field = NearestField::new(
+    let lookup = SurfaceLookup::new(
         &points,
         &index,
         params.field_cell_m as f32,
@@ -389,15 +407,20 @@ fn prepare_model(cloud: &PointCloud, params: &RegisterParams) -> Result<Prepared
         &feature_tree,
         params.fpfh_radius_m as f32,
     );
-    let feature_index = FeatureIndex::new(&features);
+    // The sparse subsample: one point per 6 mm voxel, nearest the voxel centroid.
+    let sparse = voxel_downsample(&PointCloud::from_points(points.clone()), 0.006)
+        .points
+        .iter()
+        .map(|c| points[index.nearest(c).map_or(0, |(j, _)| j)])
+        .collect();
     Ok(PreparedModel {
+        centre: centroid(&points),
         points,
         normals,
-        index,
-        field,
+        lookup,
+        sparse,
         feature_points,
         features,
-        feature_index,
         extent_m,
     })
 }
@@ -564,7 +587,9 @@ impl ModelRegistration {
 pub struct ModelStageTimes {
     /// Descriptor matching and RANSAC.
     pub ransac_ms: f64,
-    /// Coarse and exact ICP of the candidates.
+    /// Coarse search: field ICP and ranking of every start.
+    pub coarse_ms: f64,
+    /// Exact ICP and ranking of the best candidates.
     pub icp_ms: f64,
     /// Final scores over all target points.
     pub scoring_ms: f64,
@@ -582,7 +607,9 @@ pub struct RegisterTimings {
     pub fpfh_ms: f64,
     /// Matching and RANSAC, summed over models.
     pub ransac_ms: f64,
-    /// ICP, summed over models.
+    /// Coarse search, summed over models.
+    pub coarse_ms: f64,
+    /// Exact ICP, summed over models.
     pub icp_ms: f64,
     /// Final scoring, summed over models.
     pub scoring_ms: f64,
@@ -602,9 +629,17 @@ struct PreparedTarget {
     score_normals: Vec<Vector3<f32>>,
     feature_points: Vec<Point3<f32>>,
     features: Vec<Fpfh>,
-    feature_index: FeatureIndex,
+    /// Spread subsample of the feature points matched against the models.
+    match_picks: Vec<usize>,
     centroid: Point3<f32>,
     extent_m: f64,
+    /// The table normal.
+    up: Vector3<f32>,
+    /// Lowest height of the target along `up` (m): model points below it are under
+    /// the table's cut and unseen.
+    floor_m: f32,
+    /// The sensor's position.
+    eye: Point3<f32>,
     /// The target seen from the viewpoint, for the visibility term.
     range_image: Option<visibility::RangeImage>,
 }
@@ -686,7 +721,6 @@ fn prepare_target(
         &feature_tree,
         params.fpfh_radius_m as f32,
     );
-    let feature_index = FeatureIndex::new(&features);
     timings.fpfh_ms = ms(t2);
     let t3 = Instant::now();
     let icp_tree = KdIndex::new(&icp_cloud.points);
@@ -698,8 +732,22 @@ fn prepare_target(
         Orientation::TowardsViewpoint(viewpoint),
     );
     timings.normals_ms += ms(t3);
+    // At most `icp_points` for ICP, spread over the cloud.
+    let keep = subsample_indices(icp_cloud.len(), params.icp_points);
+    let icp_normals: Vec<Vector3<f32>> = keep.iter().map(|&i| icp_normals[i]).collect();
+    let icp_cloud = PointCloud::from_points(keep.iter().map(|&i| icp_cloud.points[i]).collect());
     let picks = subsample_indices(icp_cloud.len(), params.score_points);
+    let up = Vector3::from(params.up).normalize().cast::<f32>();
+    let floor_m = valid
+        .points
+        .iter()
+        .map(|p| p.coords.dot(&up))
+        .fold(f32::INFINITY, f32::min);
     Ok(PreparedTarget {
+        match_picks: subsample_indices(feature_cloud.len(), params.match_points),
+        up,
+        floor_m,
+        eye: viewpoint,
         score_normals: picks.iter().map(|&i| icp_normals[i]).collect(),
         icp_normals,
         extent_m: bbox_diagonal(&valid.points),
@@ -713,7 +761,6 @@ fn prepare_target(
         all: valid.points,
         feature_points: feature_cloud.points,
         features,
-        feature_index,
         centroid,
     })
 }
@@ -735,55 +782,105 @@ struct Candidate {
     iterations: usize,
 }
 
+/// Model points this far (m) above the target's lowest point or lower are taken
+/// as under the table's cut (segmentation removes the points near the table).
+const FLOOR_MARGIN_M: f32 = 0.002;
+
 /// Truncated mean squared distance of `points` (target frame) moved by
-/// `model_from_target`, nearest model points from `nearest`; distances are capped
-/// at `cap_m` so a few outliers cannot dominate.
+/// `model_from_target` to the model, the squared distance to the nearest model
+/// point given by `nearest_d2`; each is capped at `cap_m²` so that a few outliers
+/// cannot dominate.
 fn truncated_cost(
     points: &[Point3<f32>],
-    model: &PreparedModel,
     model_from_target: &Pose,
     cap_m: f64,
-    nearest: impl Fn(&Point3<f32>) -> usize,
+    nearest_d2: impl Fn(&Point3<f32>) -> f32,
 ) -> f64 {
     let pose = model_from_target.cast::<f32>();
     let cap2 = (cap_m * cap_m) as f32;
     let sum: f64 = points
         .iter()
-        .map(|t| {
-            let p = pose * t;
-            ((model.points[nearest(&p)] - p).norm_squared()).min(cap2) as f64
-        })
+        .map(|t| nearest_d2(&(pose * t)).min(cap2) as f64)
         .sum();
     sum / points.len().max(1) as f64
 }
 
-/// The fraction of `model`'s points (every `step`-th), placed by
-/// `model_from_target`, that the sensor saw through (see [`visibility`]); 0 when
-/// the target has no range image.
-fn seen_through(
+/// The fraction of the model's sparse points, placed by `model_from_target`, that
+/// the target's range image contradicts (in front of what the sensor saw, or where
+/// it saw past the object; see [`visibility`]). Points under the table's cut are
+/// left out. 0 when the target has no range image.
+fn contradicted(
     target: &PreparedTarget,
     model: &PreparedModel,
     model_from_target: &Pose,
-    step: usize,
     margin_m: f64,
 ) -> f64 {
     let Some(image) = &target.range_image else {
         return 0.0;
     };
     let target_from_model = model_from_target.inverse().cast::<f32>();
-    image.seen_through_fraction(
+    let floor = target.floor_m + FLOOR_MARGIN_M;
+    image.contradicted_fraction(
         model
-            .points
+            .sparse
             .iter()
-            .step_by(step.max(1))
-            .map(|p| target_from_model * p),
+            .map(|p| target_from_model * p)
+            .filter(|p| p.coords.dot(&target.up) >= floor),
         margin_m as f32,
     )
+}
+
+/// How a candidate pose is ranked (lower is better): the truncated fitting error of
+/// `points` (target to model) plus, weighted by `unseen_weight * cap²`, the
+/// fraction of the model that the sensor's view contradicts (model to target). The
+/// first term cannot see model surface the target lacks (a handle turned away from
+/// where the sensor saw one); the second can. `exact` uses the graph walk for
+/// nearest points, otherwise the field.
+fn candidate_cost(
+    target: &PreparedTarget,
+    model: &PreparedModel,
+    params: &RegisterParams,
+    model_from_target: &Pose,
+    points: &[Point3<f32>],
+    exact: bool,
+) -> f64 {
+    let cap = params.icp_max_distance_m;
+    let fit = if exact {
+        truncated_cost(points, model_from_target, cap, |p| {
+            model.lookup.nearest_within(p, cap as f32).1
+        })
+    } else {
+        truncated_cost(points, model_from_target, cap, |p| {
+            (model.points[model.lookup.coarse(p)] - p).norm_squared()
+        })
+    };
+    fit + params.unseen_weight
+        * cap
+        * cap
+        * contradicted(target, model, model_from_target, params.seen_through_margin_m)
 }
 
 fn distinct(a: &Pose, b: &Pose) -> bool {
     let (dp, dr) = crate::geometry::pose_error(a, b);
     dp > 0.005 || dr > 5f64.to_radians()
+}
+
+/// The best `n` mutually distinct candidates, best first.
+fn best_distinct(mut candidates: Vec<Candidate>, n: usize) -> Vec<Candidate> {
+    candidates.sort_by(|a, b| a.cost.total_cmp(&b.cost));
+    let mut chosen: Vec<Candidate> = Vec::with_capacity(n);
+    for cand in candidates {
+        if chosen.len() == n {
+            break;
+        }
+        if chosen
+            .iter()
+            .all(|c| distinct(&c.model_from_target, &cand.model_from_target))
+        {
+            chosen.push(cand);
+        }
+    }
+    chosen
 }
 
 /// RANSAC over descriptor correspondences: the best distinct `target_from_model`
@@ -794,22 +891,28 @@ fn ransac(
     params: &RegisterParams,
     rng: &mut ChaCha8Rng,
 ) -> Vec<Pose> {
-    // Correspondences (target feature index, model feature index).
-    let forward: Vec<usize> = target
-        .features
+    // Correspondences (target feature index, model feature index) of a spread
+    // subsample of the target's descriptors, kept when mutual (all when too few are).
+    let picked: Vec<Fpfh> = target
+        .match_picks
         .iter()
-        .map(|f| model.feature_index.nearest(f).unwrap_or(0))
+        .map(|&i| target.features[i])
         .collect();
+    let (forward, backward) = mutual_nearest(&picked, &model.features);
     let mutual: Vec<(usize, usize)> = forward
         .iter()
         .enumerate()
-        .filter(|&(i, &j)| target.feature_index.nearest(&model.features[j]) == Some(i))
-        .map(|(i, &j)| (i, j))
+        .filter(|&(i, &j)| backward[j] == i)
+        .map(|(i, &j)| (target.match_picks[i], j))
         .collect();
     let pairs: Vec<(usize, usize)> = if mutual.len() >= 30 {
         mutual
     } else {
-        forward.iter().copied().enumerate().collect()
+        forward
+            .iter()
+            .enumerate()
+            .map(|(i, &j)| (target.match_picks[i], j))
+            .collect()
     };
     let inlier2 = (params.ransac_inlier_m * params.ransac_inlier_m) as f32;
     let check: Vec<Point3<f32>> = subsample(&target.score, 150);
@@ -845,13 +948,12 @@ fn ransac(
         let Some(target_from_model) = rigid_fit(&m, &t) else {
             continue;
         };
-        let model_from_target = target_from_model.inverse();
-        let pose = model_from_target.cast::<f32>();
+        let pose = target_from_model.inverse().cast::<f32>();
         let inliers = check
             .iter()
             .filter(|q| {
                 let p = pose * *q;
-                (model.points[model.field.nearest(&p)] - p).norm_squared() <= inlier2
+                (model.points[model.lookup.coarse(&p)] - p).norm_squared() <= inlier2
             })
             .count();
         if best.len() == params.hypotheses && inliers <= best[best.len() - 1].0 {
@@ -872,6 +974,59 @@ fn ransac(
         best.truncate(params.hypotheses);
     }
     best.into_iter().map(|(_, p)| p).collect()
+}
+
+/// The starting poses (`model_from_target`) of the candidate search: each RANSAC
+/// hypothesis `target_from_model`, upright and flipped (a half turn about a
+/// horizontal axis through the placed model's centroid), and the model standing
+/// upright behind the target's centroid as the sensor sees it; each at `yaw_steps`
+/// rotations about the table normal through the placed model's centroid.
+fn starts(
+    hypotheses: &[Pose],
+    target: &PreparedTarget,
+    model: &PreparedModel,
+    params: &RegisterParams,
+) -> Vec<Pose> {
+    let up = nalgebra::Unit::new_normalize(Vector3::from(params.up));
+    let side = nalgebra::Unit::new_normalize(
+        up.cross(&Vector3::x())
+            .try_normalize(1e-6)
+            .unwrap_or_else(|| up.cross(&Vector3::y())),
+    );
+    let model_centre = Point3::from(model.centre.coords.cast::<f64>());
+    let mut seeds: Vec<Pose> = Vec::with_capacity(2 * hypotheses.len() + 1);
+    for h in hypotheses {
+        let c = h * model_centre;
+        let flip = Translation3::from(c.coords)
+            * UnitQuaternion::from_axis_angle(&side, std::f64::consts::PI)
+            * Translation3::from(-c.coords);
+        seeds.push(*h);
+        seeds.push(flip * h);
+    }
+    // Upright: the model's +z along the table normal, its centroid a quarter of
+    // its size behind the target's centroid (a view sees the front half).
+    let upright =
+        UnitQuaternion::rotation_between(&Vector3::z(), &up).unwrap_or_else(UnitQuaternion::identity);
+    let c_target = target.centroid.coords.cast::<f64>();
+    let mut away = c_target - target.eye.coords.cast::<f64>();
+    away -= up.into_inner() * away.dot(&up);
+    let away = away.try_normalize(1e-9).unwrap_or_else(Vector3::zeros);
+    let centre = c_target + away * (0.15 * model.extent_m);
+    seeds.push(Pose::from_parts(
+        Translation3::from(centre - upright * model_centre.coords),
+        upright,
+    ));
+    let mut out = Vec::with_capacity(seeds.len() * params.yaw_steps);
+    for h in &seeds {
+        let c = (h * model_centre).coords;
+        for k in 0..params.yaw_steps {
+            let angle = std::f64::consts::TAU * k as f64 / params.yaw_steps as f64;
+            let rot = UnitQuaternion::from_axis_angle(&up, angle);
+            let about_c = Translation3::from(c) * rot * Translation3::from(-c);
+            out.push((about_c * h).inverse());
+        }
+    }
+    out
 }
 
 /// Registers one prepared model onto the prepared target.
@@ -898,98 +1053,63 @@ fn register_one(
     let t0 = Instant::now();
     let hypotheses = ransac(target, model, params, &mut rng);
     for h in &hypotheses {
-        tracing::debug!(model = name, target_from_model = ?crate::geometry::params_from_pose(h), "RANSAC hypothesis");
+        tracing::trace!(model = name, target_from_model = ?crate::geometry::params_from_pose(h), "RANSAC hypothesis");
     }
     stages.ransac_ms = ms(t0);
 
-    // Candidates: each hypothesis, upright and flipped (a half turn about a
-    // horizontal axis), each at `yaw_steps` rotations about the table normal, all
-    // through the placed model's centroid; plus the model standing upright on the
-    // target's centroid at every yaw.
+    // Coarse search on the field: every start a few ICP iterations, the best
+    // distinct ones more, the best of those exact.
     let t1 = Instant::now();
-    let up = nalgebra::Unit::new_normalize(Vector3::from(params.up));
-    let side = nalgebra::Unit::new_normalize(
-        up.cross(&Vector3::x())
-            .try_normalize(1e-6)
-            .unwrap_or_else(|| up.cross(&Vector3::y())),
-    );
-    let model_centre = centroid(&model.points).coords.cast::<f64>();
-    let c_target = target.centroid.coords.cast::<f64>();
-    let mut seeds: Vec<Pose> = Vec::new();
-    for h in &hypotheses {
-        let c = h * Point3::from(model_centre);
-        let flip = Translation3::from(c.coords)
-            * UnitQuaternion::from_axis_angle(&side, std::f64::consts::PI)
-            * Translation3::from(-c.coords);
-        seeds.push(*h);
-        seeds.push(flip * h);
-    }
-    seeds.push(Pose::from_parts(
-        Translation3::from(c_target - model_centre),
-        UnitQuaternion::identity(),
-    ));
-    let mut starts = Vec::with_capacity(seeds.len() * params.yaw_steps);
-    for h in &seeds {
-        let c = (h * Point3::from(model_centre)).coords;
-        for k in 0..params.yaw_steps {
-            let angle = std::f64::consts::TAU * k as f64 / params.yaw_steps as f64;
-            let rot = UnitQuaternion::from_axis_angle(&up, angle);
-            let about_c = Translation3::from(c) * rot * Translation3::from(-c);
-            starts.push((about_c * h).inverse());
-        }
-    }
-    let coarse = IcpSettings {
-        max_iterations: params.coarse_iterations,
+    let coarse = |iterations: usize| IcpSettings {
+        max_iterations: iterations,
         max_distance_m: 2.0 * params.icp_max_distance_m,
         metric: params.icp_metric,
         converge_translation_m: 1e-4,
         converge_rotation_rad: 1e-3,
         min_normal_cos: params.icp_min_normal_cos as f32,
     };
-    let cap = params.icp_max_distance_m;
-    let mut candidates: Vec<Candidate> = starts
+    let coarse_icp = |start: &Pose, iterations: usize| {
+        let r = icp(
+            &target.score,
+            Some(&target.score_normals),
+            &model.points,
+            &model.normals,
+            |p| Some(model.lookup.coarse(p)),
+            start,
+            &coarse(iterations),
+        );
+        Candidate {
+            model_from_target: r.model_from_target,
+            cost: candidate_cost(target, model, params, &r.model_from_target, &target.score, false),
+            iterations: r.iterations,
+        }
+    };
+    let first: Vec<Candidate> = starts(&hypotheses, target, model, params)
         .iter()
-        .map(|start| {
-            let r = icp(
-                &target.score,
-                Some(&target.score_normals),
-                &model.points,
-                &model.normals,
-                |p| Some(model.field.nearest(p)),
-                start,
-                &coarse,
-            );
-            Candidate {
-                model_from_target: r.model_from_target,
-                cost: truncated_cost(&target.score, model, &r.model_from_target, cap, |p| {
-                    model.field.nearest(p)
-                }) + params.unseen_weight
-                    * cap
-                    * cap
-                    * seen_through(
-                        target,
-                        model,
-                        &r.model_from_target,
-                        (model.points.len() / 500).max(1),
-                        params.seen_through_margin_m,
-                    ),
-                iterations: r.iterations,
-            }
+        .map(|s| coarse_icp(s, params.coarse_iterations))
+        .collect();
+    let polished: Vec<Candidate> = best_distinct(first, params.polish_best)
+        .into_iter()
+        .map(|c| {
+            let mut r = coarse_icp(&c.model_from_target, params.polish_iterations);
+            r.iterations += c.iterations;
+            r
         })
         .collect();
-    candidates.sort_by(|a, b| a.cost.total_cmp(&b.cost));
-    let mut chosen: Vec<Candidate> = Vec::new();
-    for cand in candidates {
-        if chosen.len() == params.refine_best {
-            break;
-        }
-        if chosen
-            .iter()
-            .all(|c| distinct(&c.model_from_target, &cand.model_from_target))
-        {
-            chosen.push(cand);
+    stages.coarse_ms = ms(t1);
+    // DEBUG-TRUTH (temporary)
+    if let Ok(text) = std::env::var("GRASPCELL_DEBUG_TRUTH") {
+        let v: Vec<f64> = text.split(',').map(|x| x.parse().unwrap()).collect();
+        let truth = crate::geometry::pose_from_params(&[v[0], v[1], v[2], v[3], v[4], v[5]]).inverse();
+        let fit = |p: &Pose, pts: &[Point3<f32>]| truncated_cost(pts, p, params.icp_max_distance_m, |q| model.lookup.nearest(q).1);
+        eprintln!("{name} TRUTH coarse {:.3e} exact {:.3e} fit {:.3e} contra {:.4}", candidate_cost(target, model, params, &truth, &target.score, false), candidate_cost(target, model, params, &truth, &target.icp, true), fit(&truth, &target.icp), contradicted(target, model, &truth, params.seen_through_margin_m));
+        for c in &polished {
+            let (dp, dr) = crate::geometry::pose_error(&c.model_from_target, &truth);
+            eprintln!("  polished cost {:.3e} fit {:.3e} contra {:.4} err {:.1} mm {:.1} deg", c.cost, fit(&c.model_from_target, &target.icp), contradicted(target, model, &c.model_from_target, params.seen_through_margin_m), dp*1e3, dr.to_degrees());
         }
     }
+
+    let t2 = Instant::now();
     let exact = IcpSettings {
         max_iterations: params.icp_iterations,
         max_distance_m: params.icp_max_distance_m,
@@ -998,11 +1118,17 @@ fn register_one(
         converge_rotation_rad: 1e-4,
         min_normal_cos: params.icp_min_normal_cos as f32,
     };
-    let nearest_exact = |p: &Point3<f32>| model.index.nearest(p).map_or(0, |(j, _)| j);
-    let best = chosen
+    let nearest = |p: &Point3<f32>| {
+        Some(
+            model
+                .lookup
+                .nearest_within(p, params.icp_max_distance_m as f32)
+                .0,
+        )
+    };
+    let best = best_distinct(polished, params.refine_best)
         .iter()
         .map(|cand| {
-            let nearest = |p: &Point3<f32>| model.index.nearest(p).map(|(j, _)| j);
             let wide = icp(
                 &target.icp,
                 Some(&target.icp_normals),
@@ -1027,47 +1153,31 @@ fn register_one(
                 },
             );
             r.iterations += wide.iterations;
-            tracing::debug!(
+            let cost = candidate_cost(target, model, params, &r.model_from_target, &target.icp, true);
+            tracing::trace!(
                 model = name,
-                fit = truncated_cost(&target.icp, model, &r.model_from_target, cap, nearest_exact),
-                seen_through = seen_through(target, model, &r.model_from_target, 3, params.seen_through_margin_m),
+                cost,
                 target_from_model = ?crate::geometry::params_from_pose(&r.model_from_target.inverse()),
                 "refined candidate"
             );
             Candidate {
                 model_from_target: r.model_from_target,
-                cost: truncated_cost(&target.icp, model, &r.model_from_target, cap, nearest_exact)
-                    + params.unseen_weight
-                        * cap
-                        * cap
-                        * seen_through(
-                            target,
-                            model,
-                            &r.model_from_target,
-                            (model.points.len() / 2000).max(1),
-                            params.seen_through_margin_m,
-                        ),
+                cost,
                 iterations: cand.iterations + r.iterations,
             }
         })
         .min_by(|a, b| a.cost.total_cmp(&b.cost));
-    stages.icp_ms = ms(t1);
+    stages.icp_ms = ms(t2);
     let Some(best) = best else {
         return ModelRegistration::failed(name, "no candidate pose".into());
     };
 
-    let t2 = Instant::now();
+    let t3 = Instant::now();
     let pose = best.model_from_target.cast::<f32>();
     let d2: Vec<f64> = target
         .all
-        .par_iter()
-        .map(|t| {
-            let p = pose * t;
-            model
-                .index
-                .nearest(&p)
-                .map_or(f64::INFINITY, |(_, d2)| d2 as f64)
-        })
+        .iter()
+        .map(|t| model.lookup.nearest(&(pose * t)).1 as f64)
         .collect();
     let n = d2.len() as f64;
     let eps = d2.iter().sum::<f64>() / n;
@@ -1080,7 +1190,7 @@ fn register_one(
     } else {
         (inliers.iter().sum::<f64>() / inliers.len() as f64).sqrt()
     };
-    stages.scoring_ms = ms(t2);
+    stages.scoring_ms = ms(t3);
     let status = if inlier_fraction < params.min_inlier_fraction {
         RegistrationStatus::Failed(format!(
             "poor fit: {:.0}% of target points within {} mm of the model (need {:.0}%)",
@@ -1141,6 +1251,7 @@ pub fn register_all_timed(
         .collect();
     for r in &results {
         timings.ransac_ms += r.stages.ransac_ms;
+        timings.coarse_ms += r.stages.coarse_ms;
         timings.icp_ms += r.stages.icp_ms;
         timings.scoring_ms += r.stages.scoring_ms;
     }

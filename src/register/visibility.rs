@@ -6,6 +6,12 @@
 //! Distances from target to model cannot tell a mug from the same mug upside down
 //! when both cover the target's points; the upside-down mug's closed bottom then
 //! sits in front of the inside the camera saw, and this term sees it.
+//!
+//! [`RangeImage::contradicted_fraction`] also counts model points that project
+//! where the sensor saw no object at all (outside the target's silhouette, grown
+//! by one bin for the sensor's lost edge pixels): there it saw past the object to
+//! the table. This is what tells a mug's handle on the wrong side: turned away from
+//! where the sensor saw it, the model's handle sticks out of the silhouette.
 
 use nalgebra::{Point3, Vector3};
 
@@ -20,7 +26,14 @@ pub struct RangeImage {
     dims: [usize; 2],
     /// Nearest range per bin (m); infinity where no point fell.
     nearest_m: Vec<f32>,
+    /// Whether a bin or one of its 8 neighbours holds a point (the silhouette,
+    /// grown by one bin).
+    near: Vec<bool>,
 }
+
+/// Empty bins around the target's silhouette, so that a model point just outside
+/// it still falls in the image.
+const PAD_BINS: f32 = 12.0;
 
 impl RangeImage {
     /// The range image of `points` seen from `eye`, with bins about `bin_m` wide at
@@ -48,6 +61,7 @@ impl RangeImage {
             origin: [0.0; 2],
             dims: [0; 2],
             nearest_m: Vec::new(),
+            near: Vec::new(),
         };
         let projected: Vec<([f32; 2], f32)> =
             points.iter().filter_map(|p| image.project(p)).collect();
@@ -61,10 +75,10 @@ impl RangeImage {
                 hi[k] = hi[k].max(uv[k]);
             }
         }
-        image.origin = [lo[0] - bin, lo[1] - bin];
+        image.origin = [lo[0] - PAD_BINS * bin, lo[1] - PAD_BINS * bin];
         image.dims = [
-            ((hi[0] - lo[0]) / bin) as usize + 3,
-            ((hi[1] - lo[1]) / bin) as usize + 3,
+            ((hi[0] - lo[0]) / bin) as usize + 2 * PAD_BINS as usize + 1,
+            ((hi[1] - lo[1]) / bin) as usize + 2 * PAD_BINS as usize + 1,
         ];
         // A degenerate spread (e.g. points stacked on one ray) cannot blow up memory.
         if image.dims[0].saturating_mul(image.dims[1]) > 4_000_000 {
@@ -75,6 +89,19 @@ impl RangeImage {
             if let Some(cell) = image.cell(uv) {
                 let slot = &mut image.nearest_m[cell];
                 *slot = slot.min(range);
+            }
+        }
+        let [w, h] = image.dims;
+        image.near = vec![false; w * h];
+        for v in 0..h {
+            for u in 0..w {
+                if image.nearest_m[u + w * v].is_finite() {
+                    for dv in v.saturating_sub(1)..(v + 2).min(h) {
+                        for du in u.saturating_sub(1)..(u + 2).min(w) {
+                            image.near[du + w * dv] = true;
+                        }
+                    }
+                }
             }
         }
         Some(image)
@@ -127,6 +154,35 @@ impl RangeImage {
         }
         through as f64 / covered.max(1) as f64
     }
+
+    /// Of `points` (target frame; the caller leaves out what the sensor could not
+    /// have seen anyway, such as points below the table's cut), the fraction that
+    /// the sensor's measurements contradict: more than `margin_m` in front of the
+    /// nearest surface seen along their ray, or on a ray that passed beside the
+    /// target (no target point in its bin or the bins around it). Points behind the
+    /// seen surface are occluded and count as consistent. 0 for no points.
+    pub fn contradicted_fraction(
+        &self,
+        points: impl Iterator<Item = Point3<f32>>,
+        margin_m: f32,
+    ) -> f64 {
+        let (mut total, mut contradicted) = (0usize, 0usize);
+        for p in points {
+            let Some((uv, range)) = self.project(&p) else {
+                continue;
+            };
+            total += 1;
+            let Some(cell) = self.cell(uv) else {
+                contradicted += 1;
+                continue;
+            };
+            let seen = self.nearest_m[cell];
+            if !self.near[cell] || range + margin_m < seen {
+                contradicted += 1;
+            }
+        }
+        contradicted as f64 / total.max(1) as f64
+    }
 }
 
 #[cfg(test)]
@@ -165,5 +221,42 @@ mod tests {
         // Off to the side, where the sensor saw nothing: no evidence either way.
         let off = image.seen_through_fraction(std::iter::once(Point3::new(0.5, 0.0, 0.9)), 0.01);
         assert_eq!(off, 0.0);
+    }
+
+    #[test]
+    fn points_beside_the_silhouette_are_contradicted() {
+        // The sensor at the origin saw a 10 cm square wall at z = 1 m.
+        let wall: Vec<Point3<f32>> = (0..441)
+            .map(|i| {
+                Point3::new(
+                    (i % 21) as f32 * 0.005 - 0.05,
+                    (i / 21) as f32 * 0.005 - 0.05,
+                    1.0,
+                )
+            })
+            .collect();
+        let image = RangeImage::new(&wall, Point3::origin(), 0.004).unwrap();
+        let one = |p: Point3<f32>| image.contradicted_fraction(std::iter::once(p), 0.005);
+        // On the wall, or behind it: consistent.
+        assert_eq!(one(Point3::new(0.0, 0.0, 1.0)), 0.0);
+        assert_eq!(one(Point3::new(0.02, 0.0, 1.1)), 0.0);
+        // In front of it: seen through.
+        assert_eq!(one(Point3::new(0.0, 0.0, 0.95)), 1.0);
+        // Just past its edge (within a bin): the edge may have been lost, consistent.
+        assert_eq!(one(Point3::new(0.053, 0.0, 1.0)), 0.0);
+        // Well beside it, and far outside the image: the sensor saw past.
+        assert_eq!(one(Point3::new(0.07, 0.0, 1.0)), 1.0);
+        assert_eq!(one(Point3::new(0.5, 0.0, 1.0)), 1.0);
+        // Behind the eye: no evidence; the fraction is over the others.
+        let mixed = image.contradicted_fraction(
+            [
+                Point3::new(0.0, 0.0, -1.0),
+                Point3::new(0.0, 0.0, 1.0),
+                Point3::new(0.09, 0.0, 1.0),
+            ]
+            .into_iter(),
+            0.005,
+        );
+        assert_eq!(mixed, 0.5);
     }
 }
