@@ -312,6 +312,10 @@ struct ViewBench {
     target_points: usize,
     /// Target stages run once per call; model stages are CPU time summed over models.
     median_ms: StageMedians,
+    /// Median CPU time of the process per call (ms), all threads: with `threads`
+    /// cores to itself a call's wall time is about this over the threads; a total
+    /// well above that means the machine was busy with other work.
+    median_cpu_ms: f64,
     /// Own model's pose error (mm, deg) and its rank by eps among all models (1 = best), per run.
     own_error_mm: f64,
     own_error_deg: f64,
@@ -324,6 +328,7 @@ struct StageMedians {
     downsample: f64,
     normals: f64,
     fpfh: f64,
+    matching: f64,
     ransac: f64,
     coarse: f64,
     icp: f64,
@@ -342,6 +347,17 @@ struct RegisterBench {
     view_shows: String,
     model_preparation_ms: f64,
     views: Vec<ViewBench>,
+}
+
+/// CPU time (user and system) of this process so far (ms).
+fn process_cpu_ms() -> f64 {
+    // SAFETY: getrusage only writes the struct it is given.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
+        return f64::NAN;
+    }
+    let ms = |t: libc::timeval| t.tv_sec as f64 * 1e3 + t.tv_usec as f64 * 1e-3;
+    ms(usage.ru_utime) + ms(usage.ru_stime)
 }
 
 /// The mug `index` of the bench's set.
@@ -456,13 +472,16 @@ pub fn bench(config_path: &Path, args: RegisterBenchArgs) -> anyhow::Result<Exit
     let mut out = Vec::new();
     for (name, view) in &views {
         let mut runs: Vec<(Vec<ModelRegistration>, RegisterTimings)> = Vec::new();
+        let mut cpu = Vec::new();
         for r in 0..args.repeats {
+            let before = process_cpu_ms();
             runs.push(register_all_timed(
                 view,
                 &models,
                 &params,
                 args.seed + r as u64,
             )?);
+            cpu.push(process_cpu_ms() - before);
         }
         let stage = |f: fn(&RegisterTimings) -> f64| {
             median(&mut runs.iter().map(|(_, t)| f(t)).collect::<Vec<_>>())
@@ -481,12 +500,14 @@ pub fn bench(config_path: &Path, args: RegisterBenchArgs) -> anyhow::Result<Exit
                 downsample: stage(|t| t.downsample_ms),
                 normals: stage(|t| t.normals_ms),
                 fpfh: stage(|t| t.fpfh_ms),
+                matching: stage(|t| t.matching_ms),
                 ransac: stage(|t| t.ransac_ms),
                 coarse: stage(|t| t.coarse_ms),
                 icp: stage(|t| t.icp_ms),
                 scoring: stage(|t| t.scoring_ms),
                 total: stage(|t| t.total_ms),
             },
+            median_cpu_ms: median(&mut cpu),
             own_error_mm: dp * 1e3,
             own_error_deg: dr.to_degrees(),
             own_rank: rank,

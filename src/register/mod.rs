@@ -134,7 +134,9 @@ pub struct RegisterParams {
     pub match_points: usize,
     /// Rotations about the table normal tried per hypothesis (1 = none).
     pub yaw_steps: usize,
-    /// Coarse (field) ICP iterations per start.
+    /// Coarse (field) ICP iterations that settle each seed before the yaw sweep.
+    pub settle_iterations: usize,
+    /// Coarse (field) ICP iterations per start of the sweep.
     pub coarse_iterations: usize,
     /// Best distinct starts refined further on the field.
     pub polish_best: usize,
@@ -157,8 +159,10 @@ pub struct RegisterParams {
     pub seen_through_margin_m: f64,
     /// ICP metric.
     pub icp_metric: IcpMetric,
-    /// Target points used to score hypotheses.
+    /// Target points used to score hypotheses and polish candidates.
     pub score_points: usize,
+    /// Of those, the points used in the yaw sweep (a spread subsample).
+    pub sweep_points: usize,
     /// Weight of the visibility term in ranking candidates: the fraction of the
     /// placed model's points that the sensor saw through, times
     /// `icp_max_distance_m^2`, is added to the truncated fitting error.
@@ -203,22 +207,24 @@ impl Default for RegisterParams {
             hypotheses: 4,
             match_points: 300,
             yaw_steps: 24,
+            settle_iterations: 6,
             coarse_iterations: 3,
             polish_best: 8,
             polish_iterations: 10,
             refine_best: 3,
-            icp_points: 600,
-            icp_iterations: 30,
+            icp_points: 500,
+            icp_iterations: 12,
             icp_max_distance_m: 0.01,
             icp_fine_distance_m: 0.004,
             icp_min_normal_cos: 0.5,
             seen_through_margin_m: 0.005,
             icp_metric: IcpMetric::PointToPlane,
             score_points: 400,
+            sweep_points: 200,
             unseen_weight: 1.0,
             range_bin_m: 0.004,
             field_cell_m: 0.003,
-            field_margin_m: 0.03,
+            field_margin_m: 0.02,
             inlier_distance_m: 0.005,
             min_inlier_fraction: 0.3,
             max_scale_ratio: 4.0,
@@ -267,6 +273,7 @@ impl RegisterParams {
             ("refine_best", self.refine_best, 1),
             ("icp_points", self.icp_points, 10),
             ("score_points", self.score_points, 10),
+            ("sweep_points", self.sweep_points, 10),
             ("min_target_points", self.min_target_points, 3),
             ("min_feature_points", self.min_feature_points, 3),
         ];
@@ -407,8 +414,8 @@ fn prepare_model(cloud: &PointCloud, params: &RegisterParams) -> Result<Prepared
         &feature_tree,
         params.fpfh_radius_m as f32,
     );
-    // The sparse subsample: one point per 6 mm voxel, nearest the voxel centroid.
-    let sparse = voxel_downsample(&PointCloud::from_points(points.clone()), 0.006)
+    // The sparse subsample: one point per 8 mm voxel, nearest the voxel centroid.
+    let sparse = voxel_downsample(&PointCloud::from_points(points.clone()), 0.008)
         .points
         .iter()
         .map(|c| points[index.nearest(c).map_or(0, |(j, _)| j)])
@@ -585,7 +592,9 @@ impl ModelRegistration {
 /// Per-model stage times (ms).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
 pub struct ModelStageTimes {
-    /// Descriptor matching and RANSAC.
+    /// Descriptor matching.
+    pub matching_ms: f64,
+    /// RANSAC.
     pub ransac_ms: f64,
     /// Coarse search: field ICP and ranking of every start.
     pub coarse_ms: f64,
@@ -605,7 +614,9 @@ pub struct RegisterTimings {
     pub normals_ms: f64,
     /// Target FPFH descriptors.
     pub fpfh_ms: f64,
-    /// Matching and RANSAC, summed over models.
+    /// Descriptor matching, summed over models.
+    pub matching_ms: f64,
+    /// RANSAC, summed over models.
     pub ransac_ms: f64,
     /// Coarse search, summed over models.
     pub coarse_ms: f64,
@@ -883,16 +894,10 @@ fn best_distinct(mut candidates: Vec<Candidate>, n: usize) -> Vec<Candidate> {
     chosen
 }
 
-/// RANSAC over descriptor correspondences: the best distinct `target_from_model`
-/// hypotheses, best first.
-fn ransac(
-    target: &PreparedTarget,
-    model: &PreparedModel,
-    params: &RegisterParams,
-    rng: &mut ChaCha8Rng,
-) -> Vec<Pose> {
-    // Correspondences (target feature index, model feature index) of a spread
-    // subsample of the target's descriptors, kept when mutual (all when too few are).
+/// Correspondences `(target feature index, model feature index)` of a spread
+/// subsample of the target's descriptors, kept when mutual (all when fewer than
+/// 30 are).
+fn correspondences(target: &PreparedTarget, model: &PreparedModel) -> Vec<(usize, usize)> {
     let picked: Vec<Fpfh> = target
         .match_picks
         .iter()
@@ -905,7 +910,7 @@ fn ransac(
         .filter(|&(i, &j)| backward[j] == i)
         .map(|(i, &j)| (target.match_picks[i], j))
         .collect();
-    let pairs: Vec<(usize, usize)> = if mutual.len() >= 30 {
+    if mutual.len() >= 30 {
         mutual
     } else {
         forward
@@ -913,7 +918,18 @@ fn ransac(
             .enumerate()
             .map(|(i, &j)| (target.match_picks[i], j))
             .collect()
-    };
+    }
+}
+
+/// RANSAC over descriptor correspondences `pairs`: the best distinct
+/// `target_from_model` hypotheses, best first.
+fn ransac(
+    target: &PreparedTarget,
+    model: &PreparedModel,
+    pairs: &[(usize, usize)],
+    params: &RegisterParams,
+    rng: &mut ChaCha8Rng,
+) -> Vec<Pose> {
     let inlier2 = (params.ransac_inlier_m * params.ransac_inlier_m) as f32;
     let check: Vec<Point3<f32>> = subsample(&target.score, 150);
     let mut best: Vec<(usize, Pose)> = Vec::new();
@@ -976,12 +992,11 @@ fn ransac(
     best.into_iter().map(|(_, p)| p).collect()
 }
 
-/// The starting poses (`model_from_target`) of the candidate search: each RANSAC
-/// hypothesis `target_from_model`, upright and flipped (a half turn about a
-/// horizontal axis through the placed model's centroid), and the model standing
-/// upright behind the target's centroid as the sensor sees it; each at `yaw_steps`
-/// rotations about the table normal through the placed model's centroid.
-fn starts(
+/// The seeds (`target_from_model`) of the candidate search: each RANSAC
+/// hypothesis, upright and flipped (a half turn about a horizontal axis through the
+/// placed model's centroid), and the model standing upright behind the target's
+/// centroid as the sensor sees it.
+fn seeds(
     hypotheses: &[Pose],
     target: &PreparedTarget,
     model: &PreparedModel,
@@ -1016,8 +1031,23 @@ fn starts(
         Translation3::from(centre - upright * model_centre.coords),
         upright,
     ));
-    let mut out = Vec::with_capacity(seeds.len() * params.yaw_steps);
-    for h in &seeds {
+    seeds
+}
+
+/// Whether two placements `target_from_model` differ by no more than a turn about
+/// the table normal `up` (and 5 mm, 3 deg): the yaw sweep of one covers the other.
+fn same_but_yaw(a: &Pose, b: &Pose, centre: &Point3<f64>, up: &Vector3<f64>) -> bool {
+    let tilt = (a.rotation * b.rotation.inverse()) * up;
+    (a * centre - b * centre).norm() < 0.005 && tilt.dot(up) > 3f64.to_radians().cos()
+}
+
+/// The starting poses (`model_from_target`): each placement `target_from_model`
+/// at `yaw_steps` turns about the table normal through the placed model's centroid.
+fn yaw_sweep(placements: &[Pose], model: &PreparedModel, params: &RegisterParams) -> Vec<Pose> {
+    let up = nalgebra::Unit::new_normalize(Vector3::from(params.up));
+    let model_centre = Point3::from(model.centre.coords.cast::<f64>());
+    let mut out = Vec::with_capacity(placements.len() * params.yaw_steps);
+    for h in placements {
         let c = (h * model_centre).coords;
         for k in 0..params.yaw_steps {
             let angle = std::f64::consts::TAU * k as f64 / params.yaw_steps as f64;
@@ -1051,7 +1081,10 @@ fn register_one(
     }
     let mut rng = ChaCha8Rng::seed_from_u64(model_seed(seed, name));
     let t0 = Instant::now();
-    let hypotheses = ransac(target, model, params, &mut rng);
+    let pairs = correspondences(target, model);
+    stages.matching_ms = ms(t0);
+    let t0 = Instant::now();
+    let hypotheses = ransac(target, model, &pairs, params, &mut rng);
     for h in &hypotheses {
         tracing::trace!(model = name, target_from_model = ?crate::geometry::params_from_pose(h), "RANSAC hypothesis");
     }
@@ -1068,10 +1101,14 @@ fn register_one(
         converge_rotation_rad: 1e-3,
         min_normal_cos: params.icp_min_normal_cos as f32,
     };
-    let coarse_icp = |start: &Pose, iterations: usize| {
+    let sweep_picks = subsample_indices(target.score.len(), params.sweep_points);
+    let sweep: Vec<Point3<f32>> = sweep_picks.iter().map(|&i| target.score[i]).collect();
+    let sweep_normals: Vec<Vector3<f32>> =
+        sweep_picks.iter().map(|&i| target.score_normals[i]).collect();
+    let coarse_icp = |start: &Pose, iterations: usize, points: &[Point3<f32>], normals: &[Vector3<f32>]| {
         let r = icp(
-            &target.score,
-            Some(&target.score_normals),
+            points,
+            Some(normals),
             &model.points,
             &model.normals,
             |p| Some(model.lookup.coarse(p)),
@@ -1080,18 +1117,44 @@ fn register_one(
         );
         Candidate {
             model_from_target: r.model_from_target,
-            cost: candidate_cost(target, model, params, &r.model_from_target, &target.score, false),
+            cost: candidate_cost(target, model, params, &r.model_from_target, points, false),
             iterations: r.iterations,
         }
     };
-    let first: Vec<Candidate> = starts(&hypotheses, target, model, params)
+    // Each seed settles on the field first; seeds that settle to the same
+    // placement up to a turn about the table normal are swept once.
+    let up = Vector3::from(params.up).normalize();
+    let centre = Point3::from(model.centre.coords.cast::<f64>());
+    let mut placements: Vec<Pose> = Vec::new();
+    let mut settle_iterations = 0;
+    for seed in seeds(&hypotheses, target, model, params) {
+        let settled = coarse_icp(&seed.inverse(), params.settle_iterations, &sweep, &sweep_normals);
+        settle_iterations = settled.iterations.max(settle_iterations);
+        let placed = settled.model_from_target.inverse();
+        if !placements
+            .iter()
+            .any(|p| same_but_yaw(p, &placed, &centre, &up))
+        {
+            placements.push(placed);
+        }
+    }
+    let first: Vec<Candidate> = yaw_sweep(&placements, model, params)
         .iter()
-        .map(|s| coarse_icp(s, params.coarse_iterations))
+        .map(|s| {
+            let mut c = coarse_icp(s, params.coarse_iterations, &sweep, &sweep_normals);
+            c.iterations += settle_iterations;
+            c
+        })
         .collect();
     let polished: Vec<Candidate> = best_distinct(first, params.polish_best)
         .into_iter()
         .map(|c| {
-            let mut r = coarse_icp(&c.model_from_target, params.polish_iterations);
+            let mut r = coarse_icp(
+                &c.model_from_target,
+                params.polish_iterations,
+                &target.score,
+                &target.score_normals,
+            );
             r.iterations += c.iterations;
             r
         })
@@ -1114,8 +1177,8 @@ fn register_one(
         max_iterations: params.icp_iterations,
         max_distance_m: params.icp_max_distance_m,
         metric: params.icp_metric,
-        converge_translation_m: 1e-5,
-        converge_rotation_rad: 1e-4,
+        converge_translation_m: 5e-5,
+        converge_rotation_rad: 5e-4,
         min_normal_cos: params.icp_min_normal_cos as f32,
     };
     let nearest = |p: &Point3<f32>| {
@@ -1250,6 +1313,7 @@ pub fn register_all_timed(
         })
         .collect();
     for r in &results {
+        timings.matching_ms += r.stages.matching_ms;
         timings.ransac_ms += r.stages.ransac_ms;
         timings.coarse_ms += r.stages.coarse_ms;
         timings.icp_ms += r.stages.icp_ms;
