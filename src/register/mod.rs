@@ -1,26 +1,33 @@
 //! Registration: every model of a category onto one partial view of a novel object.
 //!
-//! Per model (all in parallel with rayon, model features precomputed once in a
-//! [`ModelSet`]):
+//! Per model (all in parallel with rayon, model data precomputed once in a
+//! [`ModelSet`]: descriptors, normals, a nearest-point field and neighbour graph,
+//! a sparse subsample):
 //!
 //! 1. FPFH descriptors ([`fpfh`]) of the voxel-downsampled target (normals towards
 //!    the sensor) and model (normals outward); correspondences are nearest
-//!    neighbours in descriptor space, kept only when mutual (all of them if too few
-//!    are mutual).
+//!    neighbours in descriptor space (one matrix product for all pairs), kept only
+//!    when mutual (all of them if too few are mutual).
 //! 2. Correspondence RANSAC in the spirit of PCL's SampleConsensusPrerejective:
 //!    three correspondences, rejected unless their edge lengths agree; the rigid fit
-//!    is scored by how many target points land near the model, looked up in a
+//!    is scored by how many target points land near the model, looked up in the
 //!    precomputed nearest-point field ([`field`]). The best few distinct hypotheses
 //!    are kept.
-//! 3. Symmetric objects are not lost to the first local optimum: each hypothesis is
-//!    also tried rotated about the table normal through the target's centroid (every
-//!    `360 / yaw_steps` degrees). Every candidate is refined coarsely (ICP on the
-//!    field), the best few are refined with exact nearest neighbours (k-d tree ICP,
-//!    point-to-plane or point-to-point, pairs beyond a distance rejected) and ranked
-//!    by a truncated fitting error over all target points plus a visibility term
-//!    ([`visibility`]): model surface in front of what the sensor saw (so a mug
-//!    fitted upside down, its closed bottom where the camera sees into the opening,
-//!    loses to the upright fit).
+//! 3. Symmetric objects are not lost to the first local optimum. Seeds: each
+//!    hypothesis, the same flipped upside down, and the model standing upright
+//!    behind the target. Each seed settles with a few ICP iterations on the field;
+//!    every distinct placement is then swept about the table normal through the
+//!    model's centroid (`yaw_steps` turns), each turn refined briefly on the field,
+//!    the best few refined longer, and the best of those with near-exact nearest
+//!    points (the field's answer improved by a walk over the model's neighbour
+//!    graph) in two ICP passes, the second with a tight rejection distance.
+//!    Candidates are ranked in both directions: the truncated fitting error of the
+//!    target's points (target to model) plus a visibility term (model to target,
+//!    [`visibility`]): the fraction of the placed model that the sensor's view
+//!    contradicts, because it lies in front of what the sensor saw (a mug fitted
+//!    upside down, its closed bottom where the camera sees into the opening) or
+//!    where the sensor saw past the object (a handle turned away from where the
+//!    sensor saw it sticks out of the target's silhouette).
 //! 4. Scores of the winner over all target points: `eps` = mean squared distance to
 //!    the nearest model point (m²), `sigma` = standard deviation of those squared
 //!    distances, inlier fraction and inlier RMSE.
@@ -164,8 +171,9 @@ pub struct RegisterParams {
     /// Of those, the points used in the yaw sweep (a spread subsample).
     pub sweep_points: usize,
     /// Weight of the visibility term in ranking candidates: the fraction of the
-    /// placed model's points that the sensor saw through, times
-    /// `icp_max_distance_m^2`, is added to the truncated fitting error.
+    /// placed model's points that the sensor's view contradicts (seen through, or
+    /// outside the target's silhouette), times `icp_max_distance_m^2`, is added to
+    /// the truncated fitting error.
     pub unseen_weight: f64,
     /// Bin of the target's range image at the target's distance (m).
     pub range_bin_m: f64,
