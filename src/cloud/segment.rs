@@ -81,6 +81,11 @@ pub struct SegmentParams {
     pub cluster_tolerance_m: f64,
     /// Smallest cluster that can be the object.
     pub min_cluster_points: usize,
+    /// Other clusters whose footprint (the box of their points seen from above)
+    /// comes within this of the object's join it (m): one object seen in pieces,
+    /// e.g. a mug's inside, seen through its opening, cut off from its outer wall
+    /// by the sensor's lost edge pixels at the rim.
+    pub part_gap_m: f64,
     /// Seed of the plane RANSAC.
     pub seed: u64,
 }
@@ -98,6 +103,7 @@ impl Default for SegmentParams {
             plane_min_fraction: 0.2,
             cluster_tolerance_m: 0.01,
             min_cluster_points: 50,
+            part_gap_m: 0.01,
             seed: 0,
         }
     }
@@ -123,6 +129,7 @@ impl SegmentParams {
             ("plane_voxel_m", self.plane_voxel_m),
             ("plane_distance_m", self.plane_distance_m),
             ("cluster_tolerance_m", self.cluster_tolerance_m),
+            ("part_gap_m", self.part_gap_m),
         ];
         for (name, value) in positive {
             if !(value > 0.0 && value.is_finite()) {
@@ -337,6 +344,38 @@ pub fn segment_object(
             min_points: params.min_cluster_points,
         })?;
     let mut indices = object.clone();
+    // Join the object's other pieces: clusters whose footprint overlaps the
+    // object's grown by `part_gap_m`, until none is left.
+    let footprint = |c: &[usize]| {
+        c.iter().fold([f32::MAX, f32::MAX, f32::MIN, f32::MIN], |b, &i| {
+            let p = &above[i];
+            [b[0].min(p.x), b[1].min(p.y), b[2].max(p.x), b[3].max(p.y)]
+        })
+    };
+    let gap = params.part_gap_m as f32;
+    let mut joined = vec![false; clusters.len()];
+    let mut bounds = footprint(&indices);
+    loop {
+        let before = indices.len();
+        for (k, c) in clusters.iter().enumerate() {
+            if joined[k] || std::ptr::eq(c, object) {
+                continue;
+            }
+            let b = footprint(c);
+            if b[0] <= bounds[2] + gap
+                && bounds[0] <= b[2] + gap
+                && b[1] <= bounds[3] + gap
+                && bounds[1] <= b[3] + gap
+            {
+                joined[k] = true;
+                indices.extend_from_slice(c);
+                bounds = footprint(&indices);
+            }
+        }
+        if indices.len() == before {
+            break;
+        }
+    }
     indices.sort_unstable();
     Ok(PointCloud::from_points(
         indices.iter().map(|&i| above[i]).collect(),
@@ -403,6 +442,60 @@ mod tests {
             .points
             .iter()
             .all(|p| (p.x - 0.6).abs() < 0.03 && p.y.abs() < 0.03 && p.z > 0.008));
+    }
+
+    #[test]
+    fn an_object_seen_in_pieces_is_joined() {
+        // A table, an open box's wall (4 x 4 cm, 1.2..5 cm high) and, 2 cm below its
+        // rim and cut off from the wall by a 1.2 cm gap, the floor seen inside it
+        // (nearer the workspace centre than the wall); and another object 10 cm away.
+        let mut pts = Vec::new();
+        for i in 0..80 {
+            for j in 0..80 {
+                pts.push(Point3::new(0.2 + i as f32 * 0.01, -0.4 + j as f32 * 0.01, 0.0));
+            }
+        }
+        let mut object = 0;
+        for i in 0..21 {
+            for j in 0..21 {
+                for k in 0..20 {
+                    if i == 0 || i == 20 || j == 0 || j == 20 {
+                        pts.push(Point3::new(
+                            0.58 + i as f32 * 0.002,
+                            -0.02 + j as f32 * 0.002,
+                            0.012 + k as f32 * 0.002,
+                        ));
+                        object += 1;
+                    }
+                }
+                if (6..=14).contains(&i) && (6..=14).contains(&j) {
+                    pts.push(Point3::new(
+                        0.58 + i as f32 * 0.002,
+                        -0.02 + j as f32 * 0.002,
+                        0.03,
+                    ));
+                    object += 1;
+                }
+            }
+        }
+        for i in 0..10 {
+            for k in 0..10 {
+                pts.push(Point3::new(0.7, 0.1 + i as f32 * 0.002, 0.012 + k as f32 * 0.002));
+            }
+        }
+        let params = SegmentParams {
+            workspace_min_m: [0.0, -1.0, -0.1],
+            workspace_max_m: [1.2, 1.0, 1.0],
+            ..SegmentParams::default()
+        };
+        let seg = segment_object(
+            &PointCloud::from_points(pts),
+            &Pose::identity(),
+            &params,
+        )
+        .unwrap();
+        assert_eq!(seg.len(), object);
+        assert!(seg.points.iter().all(|p| p.x < 0.63 && p.y < 0.03));
     }
 
     #[test]

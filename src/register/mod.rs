@@ -1169,17 +1169,18 @@ fn register_one(
         .collect();
     stages.coarse_ms = ms(t1);
     // DEBUG-TRUTH (temporary)
-    if let Ok(text) = std::env::var("GRASPCELL_DEBUG_TRUTH") {
+    let debug_truth: Option<Pose> = std::env::var("GRASPCELL_DEBUG_TRUTH").ok().filter(|_| std::env::var("GRASPCELL_DEBUG_MODEL").map_or(true, |m| m == name)).map(|text| {
         let v: Vec<f64> = text.split(',').map(|x| x.parse().unwrap()).collect();
-        let truth = crate::geometry::pose_from_params(&[v[0], v[1], v[2], v[3], v[4], v[5]]).inverse();
+        crate::geometry::pose_from_params(&[v[0], v[1], v[2], v[3], v[4], v[5]]).inverse()
+    });
+    if let Some(truth) = debug_truth {
         let fit = |p: &Pose, pts: &[Point3<f32>]| truncated_cost(pts, p, params.icp_max_distance_m, |q| model.lookup.nearest(q).1);
-        eprintln!("{name} TRUTH coarse {:.3e} exact {:.3e} fit {:.3e} contra {:.4}", candidate_cost(target, model, params, &truth, &target.score, false), candidate_cost(target, model, params, &truth, &target.icp, true), fit(&truth, &target.icp), contradicted(target, model, &truth, params.seen_through_margin_m));
+        eprintln!("{name} TRUTH coarse {:.3e} exact {:.3e} fit {:.3e} contra {:.4} placements {}", candidate_cost(target, model, params, &truth, &target.score, false), candidate_cost(target, model, params, &truth, &target.icp, true), fit(&truth, &target.icp), contradicted(target, model, &truth, params.seen_through_margin_m), placements.len());
         for c in &polished {
-            let (dp, dr) = crate::geometry::pose_error(&c.model_from_target, &truth);
+            let (dp, dr) = crate::geometry::pose_error(&c.model_from_target.inverse(), &truth.inverse());
             eprintln!("  polished cost {:.3e} fit {:.3e} contra {:.4} err {:.1} mm {:.1} deg", c.cost, fit(&c.model_from_target, &target.icp), contradicted(target, model, &c.model_from_target, params.seen_through_margin_m), dp*1e3, dr.to_degrees());
         }
     }
-
     let t2 = Instant::now();
     let exact = IcpSettings {
         max_iterations: params.icp_iterations,
@@ -1225,6 +1226,10 @@ fn register_one(
             );
             r.iterations += wide.iterations;
             let cost = candidate_cost(target, model, params, &r.model_from_target, &target.icp, true);
+            if let Some(truth) = debug_truth {
+                let (dp, dr) = crate::geometry::pose_error(&r.model_from_target.inverse(), &truth.inverse());
+                eprintln!("  exact cost {cost:.3e} contra {:.4} err {:.1} mm {:.1} deg", contradicted(target, model, &r.model_from_target, params.seen_through_margin_m), dp*1e3, dr.to_degrees());
+            }
             tracing::trace!(
                 model = name,
                 cost,
