@@ -258,7 +258,7 @@ mod tests {
         let target_from_model = truth().inverse().cast::<f32>();
         let target: Vec<Point3<f32>> = sampled.0.iter().map(|p| target_from_model * p).collect();
         for (metric, iterations, max_m, max_deg) in [
-            (IcpMetric::PointToPlane, 30, 1e-4, 0.1),
+            (IcpMetric::PointToPlane, 30, 1e-4, 0.1f64),
             (IcpMetric::PointToPoint, 200, 3e-4, 0.6),
         ] {
             let r = run(&target, &model, metric, iterations);

@@ -26,10 +26,14 @@ pub struct RangeImage {
     dims: [usize; 2],
     /// Nearest range per bin (m); infinity where no point fell.
     nearest_m: Vec<f32>,
-    /// Whether a bin or one of its 8 neighbours holds a point (the silhouette,
-    /// grown by one bin).
-    near: Vec<bool>,
+    /// Per bin, how strongly a model point there contradicts the view when no
+    /// target point is near: 0 within one bin of the silhouette (the sensor loses
+    /// edge pixels), rising linearly to 1 at [`FULL_BINS`] bins outside it.
+    outside: Vec<f32>,
 }
+
+/// Bins outside the silhouette at which a model point is fully contradicted.
+const FULL_BINS: f32 = 4.0;
 
 /// Empty bins around the target's silhouette, so that a model point just outside
 /// it still falls in the image.
@@ -61,7 +65,7 @@ impl RangeImage {
             origin: [0.0; 2],
             dims: [0; 2],
             nearest_m: Vec::new(),
-            near: Vec::new(),
+            outside: Vec::new(),
         };
         let projected: Vec<([f32; 2], f32)> =
             points.iter().filter_map(|p| image.project(p)).collect();
@@ -91,19 +95,55 @@ impl RangeImage {
                 *slot = slot.min(range);
             }
         }
+        // Distance (bins) to the nearest filled bin: a two-pass chamfer transform
+        // (1 along rows and columns, sqrt 2 diagonally).
         let [w, h] = image.dims;
-        image.near = vec![false; w * h];
+        let mut d: Vec<f32> = image
+            .nearest_m
+            .iter()
+            .map(|r| if r.is_finite() { 0.0 } else { f32::INFINITY })
+            .collect();
+        let diag = std::f32::consts::SQRT_2;
         for v in 0..h {
             for u in 0..w {
-                if image.nearest_m[u + w * v].is_finite() {
-                    for dv in v.saturating_sub(1)..(v + 2).min(h) {
-                        for du in u.saturating_sub(1)..(u + 2).min(w) {
-                            image.near[du + w * dv] = true;
-                        }
+                let mut best = d[u + w * v];
+                if u > 0 {
+                    best = best.min(d[u - 1 + w * v] + 1.0);
+                }
+                if v > 0 {
+                    best = best.min(d[u + w * (v - 1)] + 1.0);
+                    if u > 0 {
+                        best = best.min(d[u - 1 + w * (v - 1)] + diag);
+                    }
+                    if u + 1 < w {
+                        best = best.min(d[u + 1 + w * (v - 1)] + diag);
                     }
                 }
+                d[u + w * v] = best;
             }
         }
+        for v in (0..h).rev() {
+            for u in (0..w).rev() {
+                let mut best = d[u + w * v];
+                if u + 1 < w {
+                    best = best.min(d[u + 1 + w * v] + 1.0);
+                }
+                if v + 1 < h {
+                    best = best.min(d[u + w * (v + 1)] + 1.0);
+                    if u + 1 < w {
+                        best = best.min(d[u + 1 + w * (v + 1)] + diag);
+                    }
+                    if u > 0 {
+                        best = best.min(d[u - 1 + w * (v + 1)] + diag);
+                    }
+                }
+                d[u + w * v] = best;
+            }
+        }
+        image.outside = d
+            .into_iter()
+            .map(|bins| ((bins - 1.5) / (FULL_BINS - 1.5)).clamp(0.0, 1.0))
+            .collect();
         Some(image)
     }
 
@@ -159,29 +199,32 @@ impl RangeImage {
     /// have seen anyway, such as points below the table's cut), the fraction that
     /// the sensor's measurements contradict: more than `margin_m` in front of the
     /// nearest surface seen along their ray, or on a ray that passed beside the
-    /// target (no target point in its bin or the bins around it). Points behind the
-    /// seen surface are occluded and count as consistent. 0 for no points.
+    /// target (weighted from 0 within a bin or so of its silhouette, where the
+    /// sensor loses edge pixels, to 1 from [`FULL_BINS`] bins out). Points behind
+    /// the seen surface are occluded and count as consistent. 0 for no points.
     pub fn contradicted_fraction(
         &self,
         points: impl Iterator<Item = Point3<f32>>,
         margin_m: f32,
     ) -> f64 {
-        let (mut total, mut contradicted) = (0usize, 0usize);
+        let (mut total, mut contradicted) = (0usize, 0f64);
         for p in points {
             let Some((uv, range)) = self.project(&p) else {
                 continue;
             };
             total += 1;
             let Some(cell) = self.cell(uv) else {
-                contradicted += 1;
+                contradicted += 1.0;
                 continue;
             };
             let seen = self.nearest_m[cell];
-            if !self.near[cell] || range + margin_m < seen {
-                contradicted += 1;
-            }
+            contradicted += if range + margin_m < seen {
+                1.0
+            } else {
+                self.outside[cell] as f64
+            };
         }
-        contradicted as f64 / total.max(1) as f64
+        contradicted / total.max(1) as f64
     }
 }
 
@@ -244,6 +287,9 @@ mod tests {
         assert_eq!(one(Point3::new(0.0, 0.0, 0.95)), 1.0);
         // Just past its edge (within a bin): the edge may have been lost, consistent.
         assert_eq!(one(Point3::new(0.053, 0.0, 1.0)), 0.0);
+        // Between: partly.
+        let partly = one(Point3::new(0.061, 0.0, 1.0));
+        assert!(partly > 0.0 && partly < 1.0, "{partly}");
         // Well beside it, and far outside the image: the sensor saw past.
         assert_eq!(one(Point3::new(0.07, 0.0, 1.0)), 1.0);
         assert_eq!(one(Point3::new(0.5, 0.0, 1.0)), 1.0);
