@@ -183,10 +183,6 @@ fn accuracy_trial(trial: u64) -> (f64, f64, bool) {
     let x = rng.gen_range(0.45..0.75);
     let y = rng.gen_range(-0.2..0.2);
     let truth = pose_from_params(&[x, y, config.table.height_m, 0.0, 0.0, yaw]);
-    if std::env::var("TRIAL").is_ok() {
-        std::env::set_var("GRASPCELL_DEBUG_TRUTH", format!("{x},{y},{},0,0,{yaw}", config.table.height_m));
-        std::env::set_var("GRASPCELL_DEBUG_MODEL", &db.file.models[index].name);
-    }
     let (cloud, base_from_camera) = render_mug(index, &truth, trial);
     let p = perceive(
         &cloud,
@@ -206,14 +202,6 @@ fn accuracy_trial(trial: u64) -> (f64, f64, bool) {
         .filter(|r| r.status == RegistrationStatus::Ok)
         .all(|r| r.eps_m2 >= own.eps_m2);
     (dp, dr, first)
-}
-
-#[test]
-#[ignore]
-fn debug_trial() {
-    let trial: u64 = std::env::var("TRIAL").unwrap().parse().unwrap();
-    let (dp, dr, first) = accuracy_trial(trial);
-    eprintln!("trial {trial}: {:.1} mm {:.1} deg first {first}", dp * 1e3, dr.to_degrees());
 }
 
 /// The accuracy test: 100 seeded trials (run in parallel), the 7 database
@@ -243,10 +231,12 @@ fn accuracy_100_trials_handle_visible() {
         first += usize::from(is_first);
     }
     eprintln!("{within}/100 within 5 mm / 5 deg, own model first by eps in {first}/100; misses {misses:?}");
-    // Within 5 mm and 5 deg in at least 95 % ...
+    // Within 5 mm and 5 deg in at least 95 % (measured: 98; the two misses, trials
+    // 36 and 69, have the body right and the handle turned 65-95 deg) ...
     assert!(within >= 95, "{within}/100 within 5 mm / 5 deg; {misses:?}");
-    // ... and the own model ranks first by fitting error in at least 70 %.
-    assert!(first >= 70, "own model first in {first}/100");
+    // ... and the own model ranks first by fitting error in at least 90 %
+    // (measured: 98).
+    assert!(first >= 90, "own model first in {first}/100");
 }
 
 /// A fresh directory for one test; the test removes it.

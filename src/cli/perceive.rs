@@ -430,7 +430,9 @@ pub fn bench(config_path: &Path, args: RegisterBenchArgs) -> anyhow::Result<Exit
     let truth = pose_from_params(&[0.6, 0.03, config.table.height_m, 0.0, 0.0, 0.87]);
     // The configured camera's 640 x 480 sees a few thousand points of a mug; the
     // views are rendered at the resolutions that give about 6k and 28k.
-    let native = bench_view(&config, shown, &truth, 1.0, args.seed)?.len().max(1) as f64;
+    let native = bench_view(&config, shown, &truth, 1.0, args.seed)?
+        .len()
+        .max(1) as f64;
     let views = [
         (
             "6k",

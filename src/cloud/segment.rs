@@ -148,7 +148,10 @@ impl SegmentParams {
             });
         }
         for k in 0..3 {
-            if !(self.workspace_min_m[k] < self.workspace_max_m[k]) {
+            // Also false for NaN.
+            let ordered = self.workspace_min_m[k].partial_cmp(&self.workspace_max_m[k])
+                == Some(std::cmp::Ordering::Less);
+            if !ordered {
                 return Err(SegmentError::BadParameter {
                     name: "workspace_min_m",
                     value: self.workspace_min_m[k],
@@ -347,10 +350,11 @@ pub fn segment_object(
     // Join the object's other pieces: clusters whose footprint overlaps the
     // object's grown by `part_gap_m`, until none is left.
     let footprint = |c: &[usize]| {
-        c.iter().fold([f32::MAX, f32::MAX, f32::MIN, f32::MIN], |b, &i| {
-            let p = &above[i];
-            [b[0].min(p.x), b[1].min(p.y), b[2].max(p.x), b[3].max(p.y)]
-        })
+        c.iter()
+            .fold([f32::MAX, f32::MAX, f32::MIN, f32::MIN], |b, &i| {
+                let p = &above[i];
+                [b[0].min(p.x), b[1].min(p.y), b[2].max(p.x), b[3].max(p.y)]
+            })
     };
     let gap = params.part_gap_m as f32;
     let mut joined = vec![false; clusters.len()];
@@ -452,7 +456,11 @@ mod tests {
         let mut pts = Vec::new();
         for i in 0..80 {
             for j in 0..80 {
-                pts.push(Point3::new(0.2 + i as f32 * 0.01, -0.4 + j as f32 * 0.01, 0.0));
+                pts.push(Point3::new(
+                    0.2 + i as f32 * 0.01,
+                    -0.4 + j as f32 * 0.01,
+                    0.0,
+                ));
             }
         }
         let mut object = 0;
@@ -480,7 +488,11 @@ mod tests {
         }
         for i in 0..10 {
             for k in 0..10 {
-                pts.push(Point3::new(0.7, 0.1 + i as f32 * 0.002, 0.012 + k as f32 * 0.002));
+                pts.push(Point3::new(
+                    0.7,
+                    0.1 + i as f32 * 0.002,
+                    0.012 + k as f32 * 0.002,
+                ));
             }
         }
         let params = SegmentParams {
@@ -488,12 +500,8 @@ mod tests {
             workspace_max_m: [1.2, 1.0, 1.0],
             ..SegmentParams::default()
         };
-        let seg = segment_object(
-            &PointCloud::from_points(pts),
-            &Pose::identity(),
-            &params,
-        )
-        .unwrap();
+        let seg =
+            segment_object(&PointCloud::from_points(pts), &Pose::identity(), &params).unwrap();
         assert_eq!(seg.len(), object);
         assert!(seg.points.iter().all(|p| p.x < 0.63 && p.y < 0.03));
     }

@@ -876,7 +876,12 @@ fn candidate_cost(
     fit + params.unseen_weight
         * cap
         * cap
-        * contradicted(target, model, model_from_target, params.seen_through_margin_m)
+        * contradicted(
+            target,
+            model,
+            model_from_target,
+            params.seen_through_margin_m,
+        )
 }
 
 fn distinct(a: &Pose, b: &Pose) -> bool {
@@ -946,8 +951,8 @@ fn ransac(
     }
     for _ in 0..params.ransac_iterations {
         let mut pick = [0usize; 3];
-        for k in 0..3 {
-            pick[k] = rng.gen_range(0..pairs.len());
+        for slot in &mut pick {
+            *slot = rng.gen_range(0..pairs.len());
         }
         if pick[0] == pick[1] || pick[1] == pick[2] || pick[0] == pick[2] {
             continue;
@@ -1028,8 +1033,8 @@ fn seeds(
     }
     // Upright: the model's +z along the table normal, its centroid a quarter of
     // its size behind the target's centroid (a view sees the front half).
-    let upright =
-        UnitQuaternion::rotation_between(&Vector3::z(), &up).unwrap_or_else(UnitQuaternion::identity);
+    let upright = UnitQuaternion::rotation_between(&Vector3::z(), &up)
+        .unwrap_or_else(UnitQuaternion::identity);
     let c_target = target.centroid.coords.cast::<f64>();
     let mut away = c_target - target.eye.coords.cast::<f64>();
     away -= up.into_inner() * away.dot(&up);
@@ -1111,24 +1116,27 @@ fn register_one(
     };
     let sweep_picks = subsample_indices(target.score.len(), params.sweep_points);
     let sweep: Vec<Point3<f32>> = sweep_picks.iter().map(|&i| target.score[i]).collect();
-    let sweep_normals: Vec<Vector3<f32>> =
-        sweep_picks.iter().map(|&i| target.score_normals[i]).collect();
-    let coarse_icp = |start: &Pose, iterations: usize, points: &[Point3<f32>], normals: &[Vector3<f32>]| {
-        let r = icp(
-            points,
-            Some(normals),
-            &model.points,
-            &model.normals,
-            |p| Some(model.lookup.coarse(p)),
-            start,
-            &coarse(iterations),
-        );
-        Candidate {
-            model_from_target: r.model_from_target,
-            cost: candidate_cost(target, model, params, &r.model_from_target, points, false),
-            iterations: r.iterations,
-        }
-    };
+    let sweep_normals: Vec<Vector3<f32>> = sweep_picks
+        .iter()
+        .map(|&i| target.score_normals[i])
+        .collect();
+    let coarse_icp =
+        |start: &Pose, iterations: usize, points: &[Point3<f32>], normals: &[Vector3<f32>]| {
+            let r = icp(
+                points,
+                Some(normals),
+                &model.points,
+                &model.normals,
+                |p| Some(model.lookup.coarse(p)),
+                start,
+                &coarse(iterations),
+            );
+            Candidate {
+                model_from_target: r.model_from_target,
+                cost: candidate_cost(target, model, params, &r.model_from_target, points, false),
+                iterations: r.iterations,
+            }
+        };
     // Each seed settles on the field first; seeds that settle to the same
     // placement up to a turn about the table normal are swept once.
     let up = Vector3::from(params.up).normalize();
@@ -1136,7 +1144,12 @@ fn register_one(
     let mut placements: Vec<Pose> = Vec::new();
     let mut settle_iterations = 0;
     for seed in seeds(&hypotheses, target, model, params) {
-        let settled = coarse_icp(&seed.inverse(), params.settle_iterations, &sweep, &sweep_normals);
+        let settled = coarse_icp(
+            &seed.inverse(),
+            params.settle_iterations,
+            &sweep,
+            &sweep_normals,
+        );
         settle_iterations = settled.iterations.max(settle_iterations);
         let placed = settled.model_from_target.inverse();
         if !placements
@@ -1168,19 +1181,6 @@ fn register_one(
         })
         .collect();
     stages.coarse_ms = ms(t1);
-    // DEBUG-TRUTH (temporary)
-    let debug_truth: Option<Pose> = std::env::var("GRASPCELL_DEBUG_TRUTH").ok().filter(|_| std::env::var("GRASPCELL_DEBUG_MODEL").map_or(true, |m| m == name)).map(|text| {
-        let v: Vec<f64> = text.split(',').map(|x| x.parse().unwrap()).collect();
-        crate::geometry::pose_from_params(&[v[0], v[1], v[2], v[3], v[4], v[5]]).inverse()
-    });
-    if let Some(truth) = debug_truth {
-        let fit = |p: &Pose, pts: &[Point3<f32>]| truncated_cost(pts, p, params.icp_max_distance_m, |q| model.lookup.nearest(q).1);
-        eprintln!("{name} TRUTH coarse {:.3e} exact {:.3e} fit {:.3e} contra {:.4} placements {}", candidate_cost(target, model, params, &truth, &target.score, false), candidate_cost(target, model, params, &truth, &target.icp, true), fit(&truth, &target.icp), contradicted(target, model, &truth, params.seen_through_margin_m), placements.len());
-        for c in &polished {
-            let (dp, dr) = crate::geometry::pose_error(&c.model_from_target.inverse(), &truth.inverse());
-            eprintln!("  polished cost {:.3e} fit {:.3e} contra {:.4} err {:.1} mm {:.1} deg", c.cost, fit(&c.model_from_target, &target.icp), contradicted(target, model, &c.model_from_target, params.seen_through_margin_m), dp*1e3, dr.to_degrees());
-        }
-    }
     let t2 = Instant::now();
     let exact = IcpSettings {
         max_iterations: params.icp_iterations,
@@ -1226,10 +1226,6 @@ fn register_one(
             );
             r.iterations += wide.iterations;
             let cost = candidate_cost(target, model, params, &r.model_from_target, &target.icp, true);
-            if let Some(truth) = debug_truth {
-                let (dp, dr) = crate::geometry::pose_error(&r.model_from_target.inverse(), &truth.inverse());
-                eprintln!("  exact cost {cost:.3e} contra {:.4} err {:.1} mm {:.1} deg", contradicted(target, model, &r.model_from_target, params.seen_through_margin_m), dp*1e3, dr.to_degrees());
-            }
             tracing::trace!(
                 model = name,
                 cost,
