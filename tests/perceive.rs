@@ -29,6 +29,56 @@ fn mug_models() -> &'static ModelSet {
     SET.get_or_init(|| ModelSet::from_category(mug_db(), &RegisterParams::default()).unwrap())
 }
 
+/// Whether mug `index` of the database is a surface of revolution about its z axis
+/// (a mug without a handle): its surface turned by 1 rad about z lies on itself,
+/// fewer than 1 % of 2000 sample points farther than 2 mm from a dense sample of
+/// the unturned surface (a handle, a tenth of the surface, misses by centimetres).
+fn symmetric_about_z(index: usize) -> bool {
+    use graspcell::cloud::kdtree::KdIndex;
+    static SYMMETRIC: OnceLock<Vec<bool>> = OnceLock::new();
+    SYMMETRIC.get_or_init(|| {
+        let db = mug_db();
+        (0..db.meshes.len())
+            .map(|i| {
+                let dense = graspcell::cloud::sample::sample_surface(&db.meshes[i], 40_000, 5)
+                    .unwrap()
+                    .points;
+                let index = KdIndex::new(&dense);
+                let turn = nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::z_axis(), 1.0);
+                let far = graspcell::cloud::sample::sample_surface(&db.meshes[i], 2000, 6)
+                    .unwrap()
+                    .points
+                    .iter()
+                    .filter(|p| index.nearest(&(turn * *p)).unwrap().1.sqrt() > 0.002)
+                    .count();
+                far < 20
+            })
+            .collect()
+    })[index]
+}
+
+/// The pose error (m, rad) of `estimate` against `truth` for mug `index`: for a
+/// mug that is a surface of revolution the turn about its own axis is not
+/// observable, so the error is the least over such turns of `estimate`.
+fn mug_pose_error(index: usize, estimate: &Pose, truth: &Pose) -> (f64, f64) {
+    if !symmetric_about_z(index) {
+        return pose_error(estimate, truth);
+    }
+    let turned = |a: f64| {
+        let turn = nalgebra::UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), a);
+        pose_error(&(estimate * turn), truth)
+    };
+    // Coarse over the circle, then fine around the best.
+    let coarse = (0..720)
+        .map(|k| k as f64 * 0.5f64.to_radians())
+        .min_by(|a, b| turned(*a).1.total_cmp(&turned(*b).1))
+        .unwrap();
+    (-100..=100)
+        .map(|k| turned(coarse + k as f64 * 0.005f64.to_radians()))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap()
+}
+
 /// The camera's organised view of model `index` of the mug database standing on the
 /// cell's table at `base_from_object`.
 fn render_mug(
@@ -117,8 +167,9 @@ fn sim_view_of_a_mug_registers_to_its_own_model_within_5_mm_and_5_deg() {
 }
 
 /// One seeded trial of the accuracy test: model `index` at a random pose on the
-/// table with its handle visible; returns (position error m, rotation error rad,
-/// own model ranks first by eps).
+/// table with its handle visible (a mug without a handle is scored up to the turn
+/// about its axis, [`mug_pose_error`]); returns (position error m, rotation error
+/// rad, own model ranks first by eps).
 fn accuracy_trial(trial: u64) -> (f64, f64, bool) {
     use rand::{Rng, SeedableRng};
     let config = config();
@@ -144,7 +195,7 @@ fn accuracy_trial(trial: u64) -> (f64, f64, bool) {
     .unwrap();
     let name = &db.file.models[index].name;
     let own = p.registrations.iter().find(|r| &r.model == name).unwrap();
-    let (dp, dr) = pose_error(&own.target_from_model, &truth);
+    let (dp, dr) = mug_pose_error(index, &own.target_from_model, &truth);
     let first = p
         .registrations
         .iter()
@@ -153,11 +204,13 @@ fn accuracy_trial(trial: u64) -> (f64, f64, bool) {
     (dp, dr, first)
 }
 
-/// The accuracy test, in two halves of 50 seeded trials (run in parallel):
-/// the 7 database mugs in turn, each at a random pose with the handle visible.
-fn accuracy_half(trials: std::ops::Range<u64>) -> (usize, usize, Vec<String>) {
+/// The accuracy test: 100 seeded trials (run in parallel), the 7 database
+/// mugs in turn, each at a random pose with the handle visible; mug_004 has no
+/// handle and is scored up to the turn about its axis.
+#[test]
+fn accuracy_100_trials_handle_visible() {
     use rayon::prelude::*;
-    let results: Vec<(u64, (f64, f64, bool))> = trials
+    let results: Vec<(u64, (f64, f64, bool))> = (0..100u64)
         .into_par_iter()
         .map(|t| (t, accuracy_trial(t)))
         .collect();
@@ -169,30 +222,21 @@ fn accuracy_half(trials: std::ops::Range<u64>) -> (usize, usize, Vec<String>) {
             within += 1;
         } else {
             misses.push(format!(
-                "trial {t}: {:.1} mm {:.1} deg",
+                "trial {t} (mug_{:03}): {:.1} mm {:.1} deg",
+                t % 7,
                 dp * 1e3,
                 dr.to_degrees()
             ));
         }
         first += usize::from(is_first);
     }
-    (within, first, misses)
-}
-
-#[test]
-fn accuracy_trials_0_to_49_handle_visible() {
-    let (within, first, misses) = accuracy_half(0..50);
-    // 95 % over the 100 trials: at most 2 misses in this half ...
-    assert!(within >= 48, "{within}/50 within 5 mm / 5 deg; {misses:?}");
-    // ... and the own model ranks first by fitting error in at least 60 %.
-    assert!(first >= 30, "own model first in {first}/50");
-}
-
-#[test]
-fn accuracy_trials_50_to_99_handle_visible() {
-    let (within, first, misses) = accuracy_half(50..100);
-    assert!(within >= 47, "{within}/50 within 5 mm / 5 deg; {misses:?}");
-    assert!(first >= 30, "own model first in {first}/50");
+    eprintln!("{within}/100 within 5 mm / 5 deg, own model first by eps in {first}/100; misses {misses:?}");
+    // Within 5 mm and 5 deg in at least 95 % (measured: 98; the two misses, trials
+    // 36 and 69, have the body right and the handle turned 65-95 deg) ...
+    assert!(within >= 95, "{within}/100 within 5 mm / 5 deg; {misses:?}");
+    // ... and the own model ranks first by fitting error in at least 90 %
+    // (measured: 98).
+    assert!(first >= 90, "own model first in {first}/100");
 }
 
 /// A fresh directory for one test; the test removes it.
@@ -392,7 +436,9 @@ fn cli_segment_then_register_prints_one_json_entry_per_model() {
     let rows: Vec<[f64; 4]> =
         serde_json::from_value(lines[0]["target_from_model"].clone()).unwrap();
     let pose = graspcell::geometry::pose_from_matrix_rows(&[rows[0], rows[1], rows[2], rows[3]]);
-    let (dp, dr) = pose_error(&pose, &truth);
+    // mug_004 has no handle: its turn about its axis is not observable.
+    assert!(symmetric_about_z(4));
+    let (dp, dr) = mug_pose_error(4, &pose, &truth);
     assert!(dp < 0.005 && dr < 5f64.to_radians(), "{dp} m {dr} rad");
 
     // Bad input: an all-NaN target is a one-line error and a non-zero exit.

@@ -81,9 +81,11 @@ pub struct SegmentParams {
     pub cluster_tolerance_m: f64,
     /// Smallest cluster that can be the object.
     pub min_cluster_points: usize,
-    /// Clusters this close to the object's main cluster are parts of it cut off by
-    /// depth-edge dropouts (a mug's handle), and join it (m).
-    pub merge_distance_m: f64,
+    /// Other clusters whose footprint (the box of their points seen from above)
+    /// comes within this of the object's join it (m): one object seen in pieces,
+    /// e.g. a handle cut off by depth-edge dropouts, or a mug's inside, seen through
+    /// its opening, cut off from its outer wall by the lost edge pixels at the rim.
+    pub part_gap_m: f64,
     /// Seed of the plane RANSAC.
     pub seed: u64,
 }
@@ -101,7 +103,7 @@ impl Default for SegmentParams {
             plane_min_fraction: 0.2,
             cluster_tolerance_m: 0.01,
             min_cluster_points: 50,
-            merge_distance_m: 0.03,
+            part_gap_m: 0.02,
             seed: 0,
         }
     }
@@ -127,7 +129,7 @@ impl SegmentParams {
             ("plane_voxel_m", self.plane_voxel_m),
             ("plane_distance_m", self.plane_distance_m),
             ("cluster_tolerance_m", self.cluster_tolerance_m),
-            ("merge_distance_m", self.merge_distance_m),
+            ("part_gap_m", self.part_gap_m),
         ];
         for (name, value) in positive {
             if !(value > 0.0 && value.is_finite()) {
@@ -146,7 +148,10 @@ impl SegmentParams {
             });
         }
         for k in 0..3 {
-            if !(self.workspace_min_m[k] < self.workspace_max_m[k]) {
+            // Also false for NaN.
+            let ordered = self.workspace_min_m[k].partial_cmp(&self.workspace_max_m[k])
+                == Some(std::cmp::Ordering::Less);
+            if !ordered {
                 return Err(SegmentError::BadParameter {
                     name: "workspace_min_m",
                     value: self.workspace_min_m[k],
@@ -279,7 +284,7 @@ pub fn euclidean_clusters(points: &[Point3<f32>], tolerance_m: f64) -> Vec<Vec<u
 /// `min_cluster_points` and a fair share (a quarter) of the largest one's points, the
 /// one whose centroid is nearest the workspace centre (x, y) — so a handle or a
 /// speck cut off by depth-edge dropouts is never taken for the object — together
-/// with every other cluster within `merge_distance_m` of it (such cut-off parts).
+/// with its other pieces (footprints within `part_gap_m`).
 /// Sorted indices into `points`; `None` when no cluster is large enough.
 fn choose_object(
     points: &[Point3<f32>],
@@ -305,18 +310,39 @@ fn choose_object(
         })
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .map(|(_, k)| k)?;
-    let main_points: Vec<Point3<f32>> = clusters[main].iter().map(|&i| points[i]).collect();
-    let index = KdIndex::new(&main_points);
-    let reach2 = (params.merge_distance_m * params.merge_distance_m) as f32;
+    // Join the object's other pieces: clusters whose footprint comes within
+    // `part_gap_m` of the object's (grown with every piece joined), until none is left.
+    let footprint = |c: &[usize]| {
+        c.iter()
+            .fold([f32::MAX, f32::MAX, f32::MIN, f32::MIN], |b, &i| {
+                let p = &points[i];
+                [b[0].min(p.x), b[1].min(p.y), b[2].max(p.x), b[3].max(p.y)]
+            })
+    };
+    let gap = params.part_gap_m as f32;
+    let mut joined = vec![false; clusters.len()];
+    joined[main] = true;
     let mut indices = clusters[main].clone();
-    for (k, cluster) in clusters.iter().enumerate() {
-        let near = |&i: &usize| {
-            index
-                .nearest(&points[i])
-                .is_some_and(|(_, d2)| d2 <= reach2)
-        };
-        if k != main && cluster.iter().any(near) {
-            indices.extend_from_slice(cluster);
+    let mut bounds = footprint(&indices);
+    loop {
+        let before = indices.len();
+        for (k, c) in clusters.iter().enumerate() {
+            if joined[k] {
+                continue;
+            }
+            let b = footprint(c);
+            if b[0] <= bounds[2] + gap
+                && bounds[0] <= b[2] + gap
+                && b[1] <= bounds[3] + gap
+                && bounds[1] <= b[3] + gap
+            {
+                joined[k] = true;
+                indices.extend_from_slice(c);
+                bounds = footprint(&indices);
+            }
+        }
+        if indices.len() == before {
+            break;
         }
     }
     indices.sort_unstable();
@@ -453,7 +479,7 @@ mod tests {
         assert!(object.contains(&handle_start) && !object.contains(&far_start));
         // With the handle farther than the merge distance it stays out.
         let apart = SegmentParams {
-            merge_distance_m: 0.01,
+            part_gap_m: 0.01,
             ..params
         };
         let object = choose_object(&points, &clusters, box_, &apart).unwrap();
@@ -483,6 +509,64 @@ mod tests {
             .points
             .iter()
             .all(|p| (p.x - 0.6).abs() < 0.03 && p.y.abs() < 0.03 && p.z > 0.008));
+    }
+
+    #[test]
+    fn an_object_seen_in_pieces_is_joined() {
+        // A table, an open box's wall (4 x 4 cm, 1.2..5 cm high) and, 2 cm below its
+        // rim and cut off from the wall by a 1.2 cm gap, the floor seen inside it
+        // (nearer the workspace centre than the wall); and another object 10 cm away.
+        let mut pts = Vec::new();
+        for i in 0..80 {
+            for j in 0..80 {
+                pts.push(Point3::new(
+                    0.2 + i as f32 * 0.01,
+                    -0.4 + j as f32 * 0.01,
+                    0.0,
+                ));
+            }
+        }
+        let mut object = 0;
+        for i in 0..21 {
+            for j in 0..21 {
+                for k in 0..20 {
+                    if i == 0 || i == 20 || j == 0 || j == 20 {
+                        pts.push(Point3::new(
+                            0.58 + i as f32 * 0.002,
+                            -0.02 + j as f32 * 0.002,
+                            0.012 + k as f32 * 0.002,
+                        ));
+                        object += 1;
+                    }
+                }
+                if (6..=14).contains(&i) && (6..=14).contains(&j) {
+                    pts.push(Point3::new(
+                        0.58 + i as f32 * 0.002,
+                        -0.02 + j as f32 * 0.002,
+                        0.03,
+                    ));
+                    object += 1;
+                }
+            }
+        }
+        for i in 0..10 {
+            for k in 0..10 {
+                pts.push(Point3::new(
+                    0.7,
+                    0.1 + i as f32 * 0.002,
+                    0.012 + k as f32 * 0.002,
+                ));
+            }
+        }
+        let params = SegmentParams {
+            workspace_min_m: [0.0, -1.0, -0.1],
+            workspace_max_m: [1.2, 1.0, 1.0],
+            ..SegmentParams::default()
+        };
+        let seg =
+            segment_object(&PointCloud::from_points(pts), &Pose::identity(), &params).unwrap();
+        assert_eq!(seg.len(), object);
+        assert!(seg.points.iter().all(|p| p.x < 0.63 && p.y < 0.03));
     }
 
     #[test]

@@ -5,7 +5,7 @@
 //! three sub-histograms scaled to sum to 100.
 
 use crate::cloud::kdtree::KdIndex;
-use nalgebra::{Point3, Vector3};
+use nalgebra::{DMatrix, Point3, Vector3};
 use rayon::prelude::*;
 use std::f32::consts::PI;
 
@@ -155,6 +155,40 @@ impl FeatureIndex {
     }
 }
 
+/// Nearest neighbours between two descriptor sets in both directions (Euclidean):
+/// `forward[i]` is the `b` index nearest `a[i]`, `backward[j]` the `a` index
+/// nearest `b[j]`. Descriptors are 33-dimensional, where k-d trees degrade to a
+/// slow brute force; this is the brute force as one matrix product
+/// (`|a - b|² = |a|² + |b|² - 2 a·b`, the product by nalgebra's blocked, vectorised
+/// `gemm`). Empty when either set is.
+pub fn mutual_nearest(a: &[Fpfh], b: &[Fpfh]) -> (Vec<usize>, Vec<usize>) {
+    if a.is_empty() || b.is_empty() {
+        return (Vec::new(), Vec::new());
+    }
+    let am = DMatrix::<f32>::from_row_iterator(a.len(), FPFH_LEN, a.iter().flatten().copied());
+    let bm = DMatrix::<f32>::from_iterator(FPFH_LEN, b.len(), b.iter().flatten().copied());
+    let dot = &am * &bm;
+    let norm = |f: &Fpfh| f.iter().map(|v| v * v).sum::<f32>();
+    let na: Vec<f32> = a.iter().map(norm).collect();
+    let mut forward = vec![(f32::INFINITY, 0usize); a.len()];
+    let mut backward = Vec::with_capacity(b.len());
+    for (j, column) in dot.column_iter().enumerate() {
+        let nb = norm(&b[j]);
+        let mut best = (f32::INFINITY, 0usize);
+        for (i, (&g, &ni)) in column.iter().zip(&na).enumerate() {
+            let d = ni + nb - 2.0 * g;
+            if d < best.0 {
+                best = (d, i);
+            }
+            if d < forward[i].0 {
+                forward[i] = (d, j);
+            }
+        }
+        backward.push(best.1);
+    }
+    (forward.into_iter().map(|(_, j)| j).collect(), backward)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -175,7 +209,7 @@ mod tests {
 
     #[test]
     fn descriptors_are_invariant_to_rigid_motion() {
-        let (pts, nrm) = sphere(400, 0.05);
+        let (pts, _) = sphere(400, 0.05);
         // Squash it to an ellipsoid so descriptors vary from point to point.
         let pts: Vec<Point3<f32>> = pts
             .iter()
@@ -210,6 +244,32 @@ mod tests {
         // Not all equal: the ellipsoid's poles and equator differ.
         let spread: f32 = a[0].iter().zip(&a[200]).map(|(u, v)| (u - v).abs()).sum();
         assert!(spread > 5.0, "{spread}");
+    }
+
+    #[test]
+    fn mutual_nearest_agrees_with_the_tree() {
+        let (pts, nrm) = sphere(300, 0.05);
+        let pts: Vec<Point3<f32>> = pts
+            .iter()
+            .map(|p| Point3::new(p.x, p.y * 0.6, p.z * 0.8))
+            .collect();
+        let index = KdIndex::new(&pts);
+        let a = compute_fpfh(&pts, &nrm, &index, 0.02);
+        let b: Vec<Fpfh> = a[..200].iter().rev().copied().collect();
+        let (forward, backward) = mutual_nearest(&a, &b);
+        assert_eq!((forward.len(), backward.len()), (a.len(), b.len()));
+        let dist = |x: &Fpfh, y: &Fpfh| x.iter().zip(y).map(|(u, v)| (u - v).powi(2)).sum::<f32>();
+        let tb = FeatureIndex::new(&b);
+        for (i, &j) in forward.iter().enumerate() {
+            let k = tb.nearest(&a[i]).unwrap();
+            assert!(dist(&a[i], &b[j]) <= dist(&a[i], &b[k]) + 0.05);
+        }
+        let ta = FeatureIndex::new(&a);
+        for (j, &i) in backward.iter().enumerate() {
+            let k = ta.nearest(&b[j]).unwrap();
+            assert!(dist(&b[j], &a[i]) <= dist(&b[j], &a[k]) + 0.05);
+        }
+        assert!(mutual_nearest(&[], &b).0.is_empty());
     }
 
     #[test]

@@ -172,14 +172,14 @@ mod tests {
     use super::*;
     use crate::cloud::kdtree::KdIndex;
 
-    /// An ellipsoid-like blob with outward normals (no symmetry).
-    fn blob() -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
-        let n = 1500;
+    /// `n` points of an ellipsoid (semi-axes 80, 50, 30 mm; no symmetry) on a
+    /// Fibonacci lattice turned by `phase` (rad), with outward normals.
+    fn blob(n: usize, phase: f32) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
         (0..n)
             .map(|i| {
                 let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
                 let s = (1.0 - z * z).sqrt();
-                let a = i as f32 * 2.399_963;
+                let a = i as f32 * 2.399_963 + phase;
                 let (x, y) = (s * a.cos(), s * a.sin());
                 let (ax, ay, az) = (0.08, 0.05, 0.03);
                 let p = Point3::new(ax * x, ay * y, az * z);
@@ -189,41 +189,88 @@ mod tests {
             .unzip()
     }
 
-    #[test]
-    fn both_metrics_recover_a_small_motion() {
-        let (pts, nrm) = blob();
-        let index = KdIndex::new(&pts);
-        let truth = Isometry3::from_parts(
+    /// The small motion of the tests: 7.8 mm and 6.5 deg.
+    fn truth() -> Pose {
+        Isometry3::from_parts(
             Translation3::new(0.006, -0.004, 0.003),
             UnitQuaternion::from_euler_angles(0.05, -0.04, 0.08),
-        );
-        // Target = the model seen through target_from_model = truth^-1, every 3rd point.
-        let target_from_model = truth.inverse().cast::<f32>();
-        let target: Vec<Point3<f32>> = pts
+        )
+    }
+
+    fn run(
+        target: &[Point3<f32>],
+        model: &(Vec<Point3<f32>>, Vec<Vector3<f32>>),
+        metric: IcpMetric,
+        max_iterations: usize,
+    ) -> IcpResult {
+        let index = KdIndex::new(&model.0);
+        let settings = IcpSettings {
+            max_iterations,
+            max_distance_m: 0.03,
+            metric,
+            converge_translation_m: 1e-7,
+            converge_rotation_rad: 1e-7,
+            min_normal_cos: 0.0,
+        };
+        icp(
+            target,
+            None,
+            &model.0,
+            &model.1,
+            |p| index.nearest(p).map(|(j, _)| j),
+            &Pose::identity(),
+            &settings,
+        )
+    }
+
+    #[test]
+    fn point_to_plane_recovers_a_small_motion_exactly() {
+        // Target = every 3rd model point seen through target_from_model = truth^-1:
+        // every target point has an exact partner, and the planes lead to it.
+        let model = blob(1500, 0.0);
+        let target_from_model = truth().inverse().cast::<f32>();
+        let target: Vec<Point3<f32>> = model
+            .0
             .iter()
             .step_by(3)
             .map(|p| target_from_model * p)
             .collect();
-        for metric in [IcpMetric::PointToPlane, IcpMetric::PointToPoint] {
-            let settings = IcpSettings {
-                max_iterations: 60,
-                max_distance_m: 0.03,
-                metric,
-                converge_translation_m: 1e-7,
-                converge_rotation_rad: 1e-7,
-                min_normal_cos: 0.0,
-            };
-            let r = icp(
-                &target,
-                None,
-                &pts,
-                &nrm,
-                |p| index.nearest(p).map(|(j, _)| j),
-                &Pose::identity(),
-                &settings,
+        let r = run(&target, &model, IcpMetric::PointToPlane, 60);
+        let (dp, dr) = crate::geometry::pose_error(&r.model_from_target, &truth());
+        assert!(r.converged && dp < 1e-6 && dr < 1e-5, "{dp} m {dr} rad");
+    }
+
+    #[test]
+    fn both_metrics_recover_a_small_motion_of_an_independent_sampling() {
+        // A real view never shares the model's sample points. (With the target made
+        // of every 3rd model point, point-to-point ICP locks onto the sparse lattice
+        // one sample off: it converged, steps below 1e-7, 1.9 mm and 3.4 deg from the
+        // truth, because each pair's partner is a neighbouring sample of the same
+        // lattice.) Here the model is dense (20k points, ~1.5 mm apart) and the
+        // target 700 points of another lattice on the same surface. Point-to-plane
+        // pairs a point with the model's tangent plane and must reach the truth to a
+        // small fraction of the spacing. Point-to-point pairs it with a sample, so it
+        // converges (linearly, given more iterations) to where the pairs' offsets
+        // balance: a fraction of the spacing, and of spacing / size (1.5 mm / 80 mm
+        // ~ 1 deg) in angle; measured 0.12 mm and 0.33 deg.
+        let model = blob(20_000, 0.0);
+        let sampled = blob(700, 1.0);
+        let target_from_model = truth().inverse().cast::<f32>();
+        let target: Vec<Point3<f32>> = sampled.0.iter().map(|p| target_from_model * p).collect();
+        for (metric, iterations, max_m, max_deg) in [
+            (IcpMetric::PointToPlane, 30, 1e-4, 0.1f64),
+            (IcpMetric::PointToPoint, 200, 3e-4, 0.6),
+        ] {
+            let r = run(&target, &model, metric, iterations);
+            let (dp, dr) = crate::geometry::pose_error(&r.model_from_target, &truth());
+            eprintln!("{metric:?}: {:.4} mm {:.4} deg", dp * 1e3, dr.to_degrees());
+            assert!(
+                r.converged && dp < max_m && dr < max_deg.to_radians(),
+                "{metric:?}: {:.3} mm {:.3} deg after {} iterations",
+                dp * 1e3,
+                dr.to_degrees(),
+                r.iterations
             );
-            let (dp, dr) = crate::geometry::pose_error(&r.model_from_target, &truth);
-            assert!(dp < 1e-4 && dr < 1e-3, "{metric:?}: {dp} m {dr} rad");
         }
     }
 

@@ -1,26 +1,33 @@
 //! Registration: every model of a category onto one partial view of a novel object.
 //!
-//! Per model (all in parallel with rayon, model features precomputed once in a
-//! [`ModelSet`]):
+//! Per model (all in parallel with rayon, model data precomputed once in a
+//! [`ModelSet`]: descriptors, normals, a nearest-point field and neighbour graph,
+//! a sparse subsample):
 //!
 //! 1. FPFH descriptors ([`fpfh`]) of the voxel-downsampled target (normals towards
 //!    the sensor) and model (normals outward); correspondences are nearest
-//!    neighbours in descriptor space, kept only when mutual (all of them if too few
-//!    are mutual).
+//!    neighbours in descriptor space (one matrix product for all pairs), kept only
+//!    when mutual (all of them if too few are mutual).
 //! 2. Correspondence RANSAC in the spirit of PCL's SampleConsensusPrerejective:
 //!    three correspondences, rejected unless their edge lengths agree; the rigid fit
-//!    is scored by how many target points land near the model, looked up in a
+//!    is scored by how many target points land near the model, looked up in the
 //!    precomputed nearest-point field ([`field`]). The best few distinct hypotheses
 //!    are kept.
-//! 3. Symmetric objects are not lost to the first local optimum: each hypothesis is
-//!    also tried rotated about the table normal through the target's centroid (every
-//!    `360 / yaw_steps` degrees). Every candidate is refined coarsely (ICP on the
-//!    field), the best few are refined with exact nearest neighbours (k-d tree ICP,
-//!    point-to-plane or point-to-point, pairs beyond a distance rejected) and ranked
-//!    by a truncated fitting error over all target points plus a visibility term
-//!    ([`visibility`]): model surface in front of what the sensor saw (so a mug
-//!    fitted upside down, its closed bottom where the camera sees into the opening,
-//!    loses to the upright fit).
+//! 3. Symmetric objects are not lost to the first local optimum. Seeds: each
+//!    hypothesis, the same flipped upside down, and the model standing upright
+//!    behind the target. Each seed settles with a few ICP iterations on the field;
+//!    every distinct placement is then swept about the table normal through the
+//!    model's centroid (`yaw_steps` turns), each turn refined briefly on the field,
+//!    the best few refined longer, and the best of those with near-exact nearest
+//!    points (the field's answer improved by a walk over the model's neighbour
+//!    graph) in two ICP passes, the second with a tight rejection distance.
+//!    Candidates are ranked in both directions: the truncated fitting error of the
+//!    target's points (target to model) plus a visibility term (model to target,
+//!    [`visibility`]): the fraction of the placed model that the sensor's view
+//!    contradicts, because it lies in front of what the sensor saw (a mug fitted
+//!    upside down, its closed bottom where the camera sees into the opening) or
+//!    where the sensor saw past the object (a handle turned away from where the
+//!    sensor saw it sticks out of the target's silhouette).
 //! 4. Scores of the winner over all target points: `eps` = mean squared distance to
 //!    the nearest model point (m²), `sigma` = standard deviation of those squared
 //!    distances, inlier fraction and inlier RMSE.
@@ -41,8 +48,8 @@ use crate::cloud::voxel::voxel_downsample;
 use crate::cloud::PointCloud;
 use crate::geometry::Pose;
 use crate::plan::ModelFit;
-use field::NearestField;
-use fpfh::{compute_fpfh, FeatureIndex, Fpfh};
+use field::SurfaceLookup;
+use fpfh::{compute_fpfh, mutual_nearest, Fpfh};
 use icp::{icp, rigid_fit, IcpMetric, IcpSettings};
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
 use rand::Rng;
@@ -130,12 +137,22 @@ pub struct RegisterParams {
     pub ransac_inlier_m: f64,
     /// Distinct RANSAC hypotheses kept.
     pub hypotheses: usize,
+    /// Target descriptors (a spread subsample) matched against each model's.
+    pub match_points: usize,
     /// Rotations about the table normal tried per hypothesis (1 = none).
     pub yaw_steps: usize,
+    /// Coarse (field) ICP iterations that settle each seed before the yaw sweep.
+    pub settle_iterations: usize,
+    /// Coarse (field) ICP iterations per start of the sweep.
+    pub coarse_iterations: usize,
+    /// Best distinct starts refined further on the field.
+    pub polish_best: usize,
+    /// Further coarse ICP iterations of those.
+    pub polish_iterations: usize,
     /// Candidates refined with exact ICP.
     pub refine_best: usize,
-    /// Coarse (field) ICP iterations per candidate.
-    pub coarse_iterations: usize,
+    /// Most target points in exact ICP (a spread subsample of the ICP cloud).
+    pub icp_points: usize,
     /// Exact ICP iterations.
     pub icp_iterations: usize,
     /// ICP rejects pairs farther apart than this (m).
@@ -149,11 +166,14 @@ pub struct RegisterParams {
     pub seen_through_margin_m: f64,
     /// ICP metric.
     pub icp_metric: IcpMetric,
-    /// Target points used to score hypotheses.
+    /// Target points used to score hypotheses and polish candidates.
     pub score_points: usize,
+    /// Of those, the points used in the yaw sweep (a spread subsample).
+    pub sweep_points: usize,
     /// Weight of the visibility term in ranking candidates: the fraction of the
-    /// placed model's points that the sensor saw through, times
-    /// `icp_max_distance_m^2`, is added to the truncated fitting error.
+    /// placed model's points that the sensor's view contradicts (seen through, or
+    /// outside the target's silhouette), times `icp_max_distance_m^2`, is added to
+    /// the truncated fitting error.
     pub unseen_weight: f64,
     /// Bin of the target's range image at the target's distance (m).
     pub range_bin_m: f64,
@@ -193,20 +213,26 @@ impl Default for RegisterParams {
             min_edge_m: 0.01,
             ransac_inlier_m: 0.006,
             hypotheses: 4,
-            yaw_steps: 8,
+            match_points: 300,
+            yaw_steps: 24,
+            settle_iterations: 6,
+            coarse_iterations: 3,
+            polish_best: 8,
+            polish_iterations: 10,
             refine_best: 3,
-            coarse_iterations: 8,
-            icp_iterations: 30,
+            icp_points: 500,
+            icp_iterations: 12,
             icp_max_distance_m: 0.01,
             icp_fine_distance_m: 0.004,
             icp_min_normal_cos: 0.5,
             seen_through_margin_m: 0.005,
             icp_metric: IcpMetric::PointToPlane,
             score_points: 400,
+            sweep_points: 200,
             unseen_weight: 1.0,
             range_bin_m: 0.004,
             field_cell_m: 0.003,
-            field_margin_m: 0.03,
+            field_margin_m: 0.02,
             inlier_distance_m: 0.005,
             min_inlier_fraction: 0.3,
             max_scale_ratio: 4.0,
@@ -250,8 +276,12 @@ impl RegisterParams {
             ("model_points", self.model_points, 10),
             ("hypotheses", self.hypotheses, 1),
             ("yaw_steps", self.yaw_steps, 1),
+            ("match_points", self.match_points, 3),
+            ("polish_best", self.polish_best, 1),
             ("refine_best", self.refine_best, 1),
+            ("icp_points", self.icp_points, 10),
             ("score_points", self.score_points, 10),
+            ("sweep_points", self.sweep_points, 10),
             ("min_target_points", self.min_target_points, 3),
             ("min_feature_points", self.min_feature_points, 3),
         ];
@@ -288,12 +318,15 @@ struct PreparedModel {
     /// ICP cloud (model frame) and its outward normals.
     points: Vec<Point3<f32>>,
     normals: Vec<Vector3<f32>>,
-    index: KdIndex,
-    field: NearestField,
+    /// Nearest points: the field (coarse) and the graph walk (exact, nearly).
+    lookup: SurfaceLookup,
+    /// A spread subsample of `points` for the visibility term.
+    sparse: Vec<Point3<f32>>,
     /// FPFH cloud and its descriptors.
     feature_points: Vec<Point3<f32>>,
     features: Vec<Fpfh>,
-    feature_index: FeatureIndex,
+    /// Centroid of `points`.
+    centre: Point3<f32>,
     /// Bounding-box diagonal (m).
     extent_m: f64,
 }
@@ -372,7 +405,7 @@ fn prepare_model(cloud: &PointCloud, params: &RegisterParams) -> Result<Prepared
         ));
     }
     let index = KdIndex::new(&points);
-    let field = NearestField::new(
+    let lookup = SurfaceLookup::new(
         &points,
         &index,
         params.field_cell_m as f32,
@@ -389,15 +422,20 @@ fn prepare_model(cloud: &PointCloud, params: &RegisterParams) -> Result<Prepared
         &feature_tree,
         params.fpfh_radius_m as f32,
     );
-    let feature_index = FeatureIndex::new(&features);
+    // The sparse subsample: one point per 8 mm voxel, nearest the voxel centroid.
+    let sparse = voxel_downsample(&PointCloud::from_points(points.clone()), 0.008)
+        .points
+        .iter()
+        .map(|c| points[index.nearest(c).map_or(0, |(j, _)| j)])
+        .collect();
     Ok(PreparedModel {
+        centre: centroid(&points),
         points,
         normals,
-        index,
-        field,
+        lookup,
+        sparse,
         feature_points,
         features,
-        feature_index,
         extent_m,
     })
 }
@@ -562,9 +600,13 @@ impl ModelRegistration {
 /// Per-model stage times (ms).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
 pub struct ModelStageTimes {
-    /// Descriptor matching and RANSAC.
+    /// Descriptor matching.
+    pub matching_ms: f64,
+    /// RANSAC.
     pub ransac_ms: f64,
-    /// Coarse and exact ICP of the candidates.
+    /// Coarse search: field ICP and ranking of every start.
+    pub coarse_ms: f64,
+    /// Exact ICP and ranking of the best candidates.
     pub icp_ms: f64,
     /// Final scores over all target points.
     pub scoring_ms: f64,
@@ -580,9 +622,13 @@ pub struct RegisterTimings {
     pub normals_ms: f64,
     /// Target FPFH descriptors.
     pub fpfh_ms: f64,
-    /// Matching and RANSAC, summed over models.
+    /// Descriptor matching, summed over models.
+    pub matching_ms: f64,
+    /// RANSAC, summed over models.
     pub ransac_ms: f64,
-    /// ICP, summed over models.
+    /// Coarse search, summed over models.
+    pub coarse_ms: f64,
+    /// Exact ICP, summed over models.
     pub icp_ms: f64,
     /// Final scoring, summed over models.
     pub scoring_ms: f64,
@@ -602,9 +648,17 @@ struct PreparedTarget {
     score_normals: Vec<Vector3<f32>>,
     feature_points: Vec<Point3<f32>>,
     features: Vec<Fpfh>,
-    feature_index: FeatureIndex,
+    /// Spread subsample of the feature points matched against the models.
+    match_picks: Vec<usize>,
     centroid: Point3<f32>,
     extent_m: f64,
+    /// The table normal.
+    up: Vector3<f32>,
+    /// Lowest height of the target along `up` (m): model points below it are under
+    /// the table's cut and unseen.
+    floor_m: f32,
+    /// The sensor's position.
+    eye: Point3<f32>,
     /// The target seen from the viewpoint, for the visibility term.
     range_image: Option<visibility::RangeImage>,
 }
@@ -686,7 +740,6 @@ fn prepare_target(
         &feature_tree,
         params.fpfh_radius_m as f32,
     );
-    let feature_index = FeatureIndex::new(&features);
     timings.fpfh_ms = ms(t2);
     let t3 = Instant::now();
     let icp_tree = KdIndex::new(&icp_cloud.points);
@@ -698,8 +751,22 @@ fn prepare_target(
         Orientation::TowardsViewpoint(viewpoint),
     );
     timings.normals_ms += ms(t3);
+    // At most `icp_points` for ICP, spread over the cloud.
+    let keep = subsample_indices(icp_cloud.len(), params.icp_points);
+    let icp_normals: Vec<Vector3<f32>> = keep.iter().map(|&i| icp_normals[i]).collect();
+    let icp_cloud = PointCloud::from_points(keep.iter().map(|&i| icp_cloud.points[i]).collect());
     let picks = subsample_indices(icp_cloud.len(), params.score_points);
+    let up = Vector3::from(params.up).normalize().cast::<f32>();
+    let floor_m = valid
+        .points
+        .iter()
+        .map(|p| p.coords.dot(&up))
+        .fold(f32::INFINITY, f32::min);
     Ok(PreparedTarget {
+        match_picks: subsample_indices(feature_cloud.len(), params.match_points),
+        up,
+        floor_m,
+        eye: viewpoint,
         score_normals: picks.iter().map(|&i| icp_normals[i]).collect(),
         icp_normals,
         extent_m: bbox_diagonal(&valid.points),
@@ -713,7 +780,6 @@ fn prepare_target(
         all: valid.points,
         feature_points: feature_cloud.points,
         features,
-        feature_index,
         centroid,
     })
 }
@@ -735,50 +801,87 @@ struct Candidate {
     iterations: usize,
 }
 
+/// Model points this far (m) above the target's lowest point or lower are taken
+/// as under the table's cut (segmentation removes the points near the table).
+const FLOOR_MARGIN_M: f32 = 0.002;
+
 /// Truncated mean squared distance of `points` (target frame) moved by
-/// `model_from_target`, nearest model points from `nearest`; distances are capped
-/// at `cap_m` so a few outliers cannot dominate.
+/// `model_from_target` to the model, the squared distance to the nearest model
+/// point given by `nearest_d2`; each is capped at `cap_m²` so that a few outliers
+/// cannot dominate.
 fn truncated_cost(
     points: &[Point3<f32>],
-    model: &PreparedModel,
     model_from_target: &Pose,
     cap_m: f64,
-    nearest: impl Fn(&Point3<f32>) -> usize,
+    nearest_d2: impl Fn(&Point3<f32>) -> f32,
 ) -> f64 {
     let pose = model_from_target.cast::<f32>();
     let cap2 = (cap_m * cap_m) as f32;
     let sum: f64 = points
         .iter()
-        .map(|t| {
-            let p = pose * t;
-            ((model.points[nearest(&p)] - p).norm_squared()).min(cap2) as f64
-        })
+        .map(|t| nearest_d2(&(pose * t)).min(cap2) as f64)
         .sum();
     sum / points.len().max(1) as f64
 }
 
-/// The fraction of `model`'s points (every `step`-th), placed by
-/// `model_from_target`, that the sensor saw through (see [`visibility`]); 0 when
-/// the target has no range image.
-fn seen_through(
+/// The fraction of the model's sparse points, placed by `model_from_target`, that
+/// the target's range image contradicts (in front of what the sensor saw, or where
+/// it saw past the object; see [`visibility`]). Points under the table's cut are
+/// left out. 0 when the target has no range image.
+fn contradicted(
     target: &PreparedTarget,
     model: &PreparedModel,
     model_from_target: &Pose,
-    step: usize,
     margin_m: f64,
 ) -> f64 {
     let Some(image) = &target.range_image else {
         return 0.0;
     };
     let target_from_model = model_from_target.inverse().cast::<f32>();
-    image.seen_through_fraction(
+    let floor = target.floor_m + FLOOR_MARGIN_M;
+    image.contradicted_fraction(
         model
-            .points
+            .sparse
             .iter()
-            .step_by(step.max(1))
-            .map(|p| target_from_model * p),
+            .map(|p| target_from_model * p)
+            .filter(|p| p.coords.dot(&target.up) >= floor),
         margin_m as f32,
     )
+}
+
+/// How a candidate pose is ranked (lower is better): the truncated fitting error of
+/// `points` (target to model) plus, weighted by `unseen_weight * cap²`, the
+/// fraction of the model that the sensor's view contradicts (model to target). The
+/// first term cannot see model surface the target lacks (a handle turned away from
+/// where the sensor saw one); the second can. `exact` uses the graph walk for
+/// nearest points, otherwise the field.
+fn candidate_cost(
+    target: &PreparedTarget,
+    model: &PreparedModel,
+    params: &RegisterParams,
+    model_from_target: &Pose,
+    points: &[Point3<f32>],
+    exact: bool,
+) -> f64 {
+    let cap = params.icp_max_distance_m;
+    let fit = if exact {
+        truncated_cost(points, model_from_target, cap, |p| {
+            model.lookup.nearest_within(p, cap as f32).1
+        })
+    } else {
+        truncated_cost(points, model_from_target, cap, |p| {
+            (model.points[model.lookup.coarse(p)] - p).norm_squared()
+        })
+    };
+    fit + params.unseen_weight
+        * cap
+        * cap
+        * contradicted(
+            target,
+            model,
+            model_from_target,
+            params.seen_through_margin_m,
+        )
 }
 
 fn distinct(a: &Pose, b: &Pose) -> bool {
@@ -786,31 +889,60 @@ fn distinct(a: &Pose, b: &Pose) -> bool {
     dp > 0.005 || dr > 5f64.to_radians()
 }
 
-/// RANSAC over descriptor correspondences: the best distinct `target_from_model`
-/// hypotheses, best first.
-fn ransac(
-    target: &PreparedTarget,
-    model: &PreparedModel,
-    params: &RegisterParams,
-    rng: &mut ChaCha8Rng,
-) -> Vec<Pose> {
-    // Correspondences (target feature index, model feature index).
-    let forward: Vec<usize> = target
-        .features
+/// The best `n` mutually distinct candidates, best first.
+fn best_distinct(mut candidates: Vec<Candidate>, n: usize) -> Vec<Candidate> {
+    candidates.sort_by(|a, b| a.cost.total_cmp(&b.cost));
+    let mut chosen: Vec<Candidate> = Vec::with_capacity(n);
+    for cand in candidates {
+        if chosen.len() == n {
+            break;
+        }
+        if chosen
+            .iter()
+            .all(|c| distinct(&c.model_from_target, &cand.model_from_target))
+        {
+            chosen.push(cand);
+        }
+    }
+    chosen
+}
+
+/// Correspondences `(target feature index, model feature index)` of a spread
+/// subsample of the target's descriptors, kept when mutual (all when fewer than
+/// 30 are).
+fn correspondences(target: &PreparedTarget, model: &PreparedModel) -> Vec<(usize, usize)> {
+    let picked: Vec<Fpfh> = target
+        .match_picks
         .iter()
-        .map(|f| model.feature_index.nearest(f).unwrap_or(0))
+        .map(|&i| target.features[i])
         .collect();
+    let (forward, backward) = mutual_nearest(&picked, &model.features);
     let mutual: Vec<(usize, usize)> = forward
         .iter()
         .enumerate()
-        .filter(|&(i, &j)| target.feature_index.nearest(&model.features[j]) == Some(i))
-        .map(|(i, &j)| (i, j))
+        .filter(|&(i, &j)| backward[j] == i)
+        .map(|(i, &j)| (target.match_picks[i], j))
         .collect();
-    let pairs: Vec<(usize, usize)> = if mutual.len() >= 30 {
+    if mutual.len() >= 30 {
         mutual
     } else {
-        forward.iter().copied().enumerate().collect()
-    };
+        forward
+            .iter()
+            .enumerate()
+            .map(|(i, &j)| (target.match_picks[i], j))
+            .collect()
+    }
+}
+
+/// RANSAC over descriptor correspondences `pairs`: the best distinct
+/// `target_from_model` hypotheses, best first.
+fn ransac(
+    target: &PreparedTarget,
+    model: &PreparedModel,
+    pairs: &[(usize, usize)],
+    params: &RegisterParams,
+    rng: &mut ChaCha8Rng,
+) -> Vec<Pose> {
     let inlier2 = (params.ransac_inlier_m * params.ransac_inlier_m) as f32;
     let check: Vec<Point3<f32>> = subsample(&target.score, 150);
     let mut best: Vec<(usize, Pose)> = Vec::new();
@@ -819,8 +951,8 @@ fn ransac(
     }
     for _ in 0..params.ransac_iterations {
         let mut pick = [0usize; 3];
-        for k in 0..3 {
-            pick[k] = rng.gen_range(0..pairs.len());
+        for slot in &mut pick {
+            *slot = rng.gen_range(0..pairs.len());
         }
         if pick[0] == pick[1] || pick[1] == pick[2] || pick[0] == pick[2] {
             continue;
@@ -845,13 +977,12 @@ fn ransac(
         let Some(target_from_model) = rigid_fit(&m, &t) else {
             continue;
         };
-        let model_from_target = target_from_model.inverse();
-        let pose = model_from_target.cast::<f32>();
+        let pose = target_from_model.inverse().cast::<f32>();
         let inliers = check
             .iter()
             .filter(|q| {
                 let p = pose * *q;
-                (model.points[model.field.nearest(&p)] - p).norm_squared() <= inlier2
+                (model.points[model.lookup.coarse(&p)] - p).norm_squared() <= inlier2
             })
             .count();
         if best.len() == params.hypotheses && inliers <= best[best.len() - 1].0 {
@@ -872,6 +1003,73 @@ fn ransac(
         best.truncate(params.hypotheses);
     }
     best.into_iter().map(|(_, p)| p).collect()
+}
+
+/// The seeds (`target_from_model`) of the candidate search: each RANSAC
+/// hypothesis, upright and flipped (a half turn about a horizontal axis through the
+/// placed model's centroid), and the model standing upright behind the target's
+/// centroid as the sensor sees it.
+fn seeds(
+    hypotheses: &[Pose],
+    target: &PreparedTarget,
+    model: &PreparedModel,
+    params: &RegisterParams,
+) -> Vec<Pose> {
+    let up = nalgebra::Unit::new_normalize(Vector3::from(params.up));
+    let side = nalgebra::Unit::new_normalize(
+        up.cross(&Vector3::x())
+            .try_normalize(1e-6)
+            .unwrap_or_else(|| up.cross(&Vector3::y())),
+    );
+    let model_centre = Point3::from(model.centre.coords.cast::<f64>());
+    let mut seeds: Vec<Pose> = Vec::with_capacity(2 * hypotheses.len() + 1);
+    for h in hypotheses {
+        let c = h * model_centre;
+        let flip = Translation3::from(c.coords)
+            * UnitQuaternion::from_axis_angle(&side, std::f64::consts::PI)
+            * Translation3::from(-c.coords);
+        seeds.push(*h);
+        seeds.push(flip * h);
+    }
+    // Upright: the model's +z along the table normal, its centroid a quarter of
+    // its size behind the target's centroid (a view sees the front half).
+    let upright = UnitQuaternion::rotation_between(&Vector3::z(), &up)
+        .unwrap_or_else(UnitQuaternion::identity);
+    let c_target = target.centroid.coords.cast::<f64>();
+    let mut away = c_target - target.eye.coords.cast::<f64>();
+    away -= up.into_inner() * away.dot(&up);
+    let away = away.try_normalize(1e-9).unwrap_or_else(Vector3::zeros);
+    let centre = c_target + away * (0.15 * model.extent_m);
+    seeds.push(Pose::from_parts(
+        Translation3::from(centre - upright * model_centre.coords),
+        upright,
+    ));
+    seeds
+}
+
+/// Whether two placements `target_from_model` differ by no more than a turn about
+/// the table normal `up` (and 5 mm, 3 deg): the yaw sweep of one covers the other.
+fn same_but_yaw(a: &Pose, b: &Pose, centre: &Point3<f64>, up: &Vector3<f64>) -> bool {
+    let tilt = (a.rotation * b.rotation.inverse()) * up;
+    (a * centre - b * centre).norm() < 0.005 && tilt.dot(up) > 3f64.to_radians().cos()
+}
+
+/// The starting poses (`model_from_target`): each placement `target_from_model`
+/// at `yaw_steps` turns about the table normal through the placed model's centroid.
+fn yaw_sweep(placements: &[Pose], model: &PreparedModel, params: &RegisterParams) -> Vec<Pose> {
+    let up = nalgebra::Unit::new_normalize(Vector3::from(params.up));
+    let model_centre = Point3::from(model.centre.coords.cast::<f64>());
+    let mut out = Vec::with_capacity(placements.len() * params.yaw_steps);
+    for h in placements {
+        let c = (h * model_centre).coords;
+        for k in 0..params.yaw_steps {
+            let angle = std::f64::consts::TAU * k as f64 / params.yaw_steps as f64;
+            let rot = UnitQuaternion::from_axis_angle(&up, angle);
+            let about_c = Translation3::from(c) * rot * Translation3::from(-c);
+            out.push((about_c * h).inverse());
+        }
+    }
+    out
 }
 
 /// Registers one prepared model onto the prepared target.
@@ -896,113 +1094,113 @@ fn register_one(
     }
     let mut rng = ChaCha8Rng::seed_from_u64(model_seed(seed, name));
     let t0 = Instant::now();
-    let hypotheses = ransac(target, model, params, &mut rng);
+    let pairs = correspondences(target, model);
+    stages.matching_ms = ms(t0);
+    let t0 = Instant::now();
+    let hypotheses = ransac(target, model, &pairs, params, &mut rng);
     for h in &hypotheses {
-        tracing::debug!(model = name, target_from_model = ?crate::geometry::params_from_pose(h), "RANSAC hypothesis");
+        tracing::trace!(model = name, target_from_model = ?crate::geometry::params_from_pose(h), "RANSAC hypothesis");
     }
     stages.ransac_ms = ms(t0);
 
-    // Candidates: each hypothesis, upright and flipped (a half turn about a
-    // horizontal axis), each at `yaw_steps` rotations about the table normal, all
-    // through the placed model's centroid; plus the model standing upright on the
-    // target's centroid at every yaw.
+    // Coarse search on the field: every start a few ICP iterations, the best
+    // distinct ones more, the best of those exact.
     let t1 = Instant::now();
-    let up = nalgebra::Unit::new_normalize(Vector3::from(params.up));
-    let side = nalgebra::Unit::new_normalize(
-        up.cross(&Vector3::x())
-            .try_normalize(1e-6)
-            .unwrap_or_else(|| up.cross(&Vector3::y())),
-    );
-    let model_centre = centroid(&model.points).coords.cast::<f64>();
-    let c_target = target.centroid.coords.cast::<f64>();
-    let mut seeds: Vec<Pose> = Vec::new();
-    for h in &hypotheses {
-        let c = h * Point3::from(model_centre);
-        let flip = Translation3::from(c.coords)
-            * UnitQuaternion::from_axis_angle(&side, std::f64::consts::PI)
-            * Translation3::from(-c.coords);
-        seeds.push(*h);
-        seeds.push(flip * h);
-    }
-    seeds.push(Pose::from_parts(
-        Translation3::from(c_target - model_centre),
-        UnitQuaternion::identity(),
-    ));
-    let mut starts = Vec::with_capacity(seeds.len() * params.yaw_steps);
-    for h in &seeds {
-        let c = (h * Point3::from(model_centre)).coords;
-        for k in 0..params.yaw_steps {
-            let angle = std::f64::consts::TAU * k as f64 / params.yaw_steps as f64;
-            let rot = UnitQuaternion::from_axis_angle(&up, angle);
-            let about_c = Translation3::from(c) * rot * Translation3::from(-c);
-            starts.push((about_c * h).inverse());
-        }
-    }
-    let coarse = IcpSettings {
-        max_iterations: params.coarse_iterations,
+    let coarse = |iterations: usize| IcpSettings {
+        max_iterations: iterations,
         max_distance_m: 2.0 * params.icp_max_distance_m,
         metric: params.icp_metric,
         converge_translation_m: 1e-4,
         converge_rotation_rad: 1e-3,
         min_normal_cos: params.icp_min_normal_cos as f32,
     };
-    let cap = params.icp_max_distance_m;
-    let mut candidates: Vec<Candidate> = starts
+    let sweep_picks = subsample_indices(target.score.len(), params.sweep_points);
+    let sweep: Vec<Point3<f32>> = sweep_picks.iter().map(|&i| target.score[i]).collect();
+    let sweep_normals: Vec<Vector3<f32>> = sweep_picks
         .iter()
-        .map(|start| {
+        .map(|&i| target.score_normals[i])
+        .collect();
+    let coarse_icp =
+        |start: &Pose, iterations: usize, points: &[Point3<f32>], normals: &[Vector3<f32>]| {
             let r = icp(
-                &target.score,
-                Some(&target.score_normals),
+                points,
+                Some(normals),
                 &model.points,
                 &model.normals,
-                |p| Some(model.field.nearest(p)),
+                |p| Some(model.lookup.coarse(p)),
                 start,
-                &coarse,
+                &coarse(iterations),
             );
             Candidate {
                 model_from_target: r.model_from_target,
-                cost: truncated_cost(&target.score, model, &r.model_from_target, cap, |p| {
-                    model.field.nearest(p)
-                }) + params.unseen_weight
-                    * cap
-                    * cap
-                    * seen_through(
-                        target,
-                        model,
-                        &r.model_from_target,
-                        (model.points.len() / 500).max(1),
-                        params.seen_through_margin_m,
-                    ),
+                cost: candidate_cost(target, model, params, &r.model_from_target, points, false),
                 iterations: r.iterations,
             }
-        })
-        .collect();
-    candidates.sort_by(|a, b| a.cost.total_cmp(&b.cost));
-    let mut chosen: Vec<Candidate> = Vec::new();
-    for cand in candidates {
-        if chosen.len() == params.refine_best {
-            break;
-        }
-        if chosen
+        };
+    // Each seed settles on the field first; seeds that settle to the same
+    // placement up to a turn about the table normal are swept once.
+    let up = Vector3::from(params.up).normalize();
+    let centre = Point3::from(model.centre.coords.cast::<f64>());
+    let mut placements: Vec<Pose> = Vec::new();
+    let mut settle_iterations = 0;
+    for seed in seeds(&hypotheses, target, model, params) {
+        let settled = coarse_icp(
+            &seed.inverse(),
+            params.settle_iterations,
+            &sweep,
+            &sweep_normals,
+        );
+        settle_iterations = settled.iterations.max(settle_iterations);
+        let placed = settled.model_from_target.inverse();
+        if !placements
             .iter()
-            .all(|c| distinct(&c.model_from_target, &cand.model_from_target))
+            .any(|p| same_but_yaw(p, &placed, &centre, &up))
         {
-            chosen.push(cand);
+            placements.push(placed);
         }
     }
+    let first: Vec<Candidate> = yaw_sweep(&placements, model, params)
+        .iter()
+        .map(|s| {
+            let mut c = coarse_icp(s, params.coarse_iterations, &sweep, &sweep_normals);
+            c.iterations += settle_iterations;
+            c
+        })
+        .collect();
+    let polished: Vec<Candidate> = best_distinct(first, params.polish_best)
+        .into_iter()
+        .map(|c| {
+            let mut r = coarse_icp(
+                &c.model_from_target,
+                params.polish_iterations,
+                &target.score,
+                &target.score_normals,
+            );
+            r.iterations += c.iterations;
+            r
+        })
+        .collect();
+    stages.coarse_ms = ms(t1);
+    let t2 = Instant::now();
     let exact = IcpSettings {
         max_iterations: params.icp_iterations,
         max_distance_m: params.icp_max_distance_m,
         metric: params.icp_metric,
-        converge_translation_m: 1e-5,
-        converge_rotation_rad: 1e-4,
+        converge_translation_m: 5e-5,
+        converge_rotation_rad: 5e-4,
         min_normal_cos: params.icp_min_normal_cos as f32,
     };
-    let nearest_exact = |p: &Point3<f32>| model.index.nearest(p).map_or(0, |(j, _)| j);
-    let best = chosen
+    let nearest = |p: &Point3<f32>| {
+        Some(
+            model
+                .lookup
+                .nearest_within(p, params.icp_max_distance_m as f32)
+                .0,
+        )
+    };
+    let best = best_distinct(polished, params.refine_best)
         .iter()
         .map(|cand| {
-            let nearest = |p: &Point3<f32>| model.index.nearest(p).map(|(j, _)| j);
             let wide = icp(
                 &target.icp,
                 Some(&target.icp_normals),
@@ -1027,47 +1225,31 @@ fn register_one(
                 },
             );
             r.iterations += wide.iterations;
-            tracing::debug!(
+            let cost = candidate_cost(target, model, params, &r.model_from_target, &target.icp, true);
+            tracing::trace!(
                 model = name,
-                fit = truncated_cost(&target.icp, model, &r.model_from_target, cap, nearest_exact),
-                seen_through = seen_through(target, model, &r.model_from_target, 3, params.seen_through_margin_m),
+                cost,
                 target_from_model = ?crate::geometry::params_from_pose(&r.model_from_target.inverse()),
                 "refined candidate"
             );
             Candidate {
                 model_from_target: r.model_from_target,
-                cost: truncated_cost(&target.icp, model, &r.model_from_target, cap, nearest_exact)
-                    + params.unseen_weight
-                        * cap
-                        * cap
-                        * seen_through(
-                            target,
-                            model,
-                            &r.model_from_target,
-                            (model.points.len() / 2000).max(1),
-                            params.seen_through_margin_m,
-                        ),
+                cost,
                 iterations: cand.iterations + r.iterations,
             }
         })
         .min_by(|a, b| a.cost.total_cmp(&b.cost));
-    stages.icp_ms = ms(t1);
+    stages.icp_ms = ms(t2);
     let Some(best) = best else {
         return ModelRegistration::failed(name, "no candidate pose".into());
     };
 
-    let t2 = Instant::now();
+    let t3 = Instant::now();
     let pose = best.model_from_target.cast::<f32>();
     let d2: Vec<f64> = target
         .all
-        .par_iter()
-        .map(|t| {
-            let p = pose * t;
-            model
-                .index
-                .nearest(&p)
-                .map_or(f64::INFINITY, |(_, d2)| d2 as f64)
-        })
+        .iter()
+        .map(|t| model.lookup.nearest(&(pose * t)).1 as f64)
         .collect();
     let n = d2.len() as f64;
     let eps = d2.iter().sum::<f64>() / n;
@@ -1080,7 +1262,7 @@ fn register_one(
     } else {
         (inliers.iter().sum::<f64>() / inliers.len() as f64).sqrt()
     };
-    stages.scoring_ms = ms(t2);
+    stages.scoring_ms = ms(t3);
     let status = if inlier_fraction < params.min_inlier_fraction {
         RegistrationStatus::Failed(format!(
             "poor fit: {:.0}% of target points within {} mm of the model (need {:.0}%)",
@@ -1140,7 +1322,9 @@ pub fn register_all_timed(
         })
         .collect();
     for r in &results {
+        timings.matching_ms += r.stages.matching_ms;
         timings.ransac_ms += r.stages.ransac_ms;
+        timings.coarse_ms += r.stages.coarse_ms;
         timings.icp_ms += r.stages.icp_ms;
         timings.scoring_ms += r.stages.scoring_ms;
     }

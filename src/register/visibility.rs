@@ -6,6 +6,12 @@
 //! Distances from target to model cannot tell a mug from the same mug upside down
 //! when both cover the target's points; the upside-down mug's closed bottom then
 //! sits in front of the inside the camera saw, and this term sees it.
+//!
+//! [`RangeImage::contradicted_fraction`] also counts model points that project
+//! where the sensor saw no object at all (outside the target's silhouette, grown
+//! by one bin for the sensor's lost edge pixels): there it saw past the object to
+//! the table. This is what tells a mug's handle on the wrong side: turned away from
+//! where the sensor saw it, the model's handle sticks out of the silhouette.
 
 use nalgebra::{Point3, Vector3};
 
@@ -20,7 +26,18 @@ pub struct RangeImage {
     dims: [usize; 2],
     /// Nearest range per bin (m); infinity where no point fell.
     nearest_m: Vec<f32>,
+    /// Per bin, how strongly a model point there contradicts the view when no
+    /// target point is near: 0 within one bin of the silhouette (the sensor loses
+    /// edge pixels), rising linearly to 1 at [`FULL_BINS`] bins outside it.
+    outside: Vec<f32>,
 }
+
+/// Bins outside the silhouette at which a model point is fully contradicted.
+const FULL_BINS: f32 = 4.0;
+
+/// Empty bins around the target's silhouette, so that a model point just outside
+/// it still falls in the image.
+const PAD_BINS: f32 = 12.0;
 
 impl RangeImage {
     /// The range image of `points` seen from `eye`, with bins about `bin_m` wide at
@@ -48,6 +65,7 @@ impl RangeImage {
             origin: [0.0; 2],
             dims: [0; 2],
             nearest_m: Vec::new(),
+            outside: Vec::new(),
         };
         let projected: Vec<([f32; 2], f32)> =
             points.iter().filter_map(|p| image.project(p)).collect();
@@ -61,10 +79,10 @@ impl RangeImage {
                 hi[k] = hi[k].max(uv[k]);
             }
         }
-        image.origin = [lo[0] - bin, lo[1] - bin];
+        image.origin = [lo[0] - PAD_BINS * bin, lo[1] - PAD_BINS * bin];
         image.dims = [
-            ((hi[0] - lo[0]) / bin) as usize + 3,
-            ((hi[1] - lo[1]) / bin) as usize + 3,
+            ((hi[0] - lo[0]) / bin) as usize + 2 * PAD_BINS as usize + 1,
+            ((hi[1] - lo[1]) / bin) as usize + 2 * PAD_BINS as usize + 1,
         ];
         // A degenerate spread (e.g. points stacked on one ray) cannot blow up memory.
         if image.dims[0].saturating_mul(image.dims[1]) > 4_000_000 {
@@ -77,6 +95,55 @@ impl RangeImage {
                 *slot = slot.min(range);
             }
         }
+        // Distance (bins) to the nearest filled bin: a two-pass chamfer transform
+        // (1 along rows and columns, sqrt 2 diagonally).
+        let [w, h] = image.dims;
+        let mut d: Vec<f32> = image
+            .nearest_m
+            .iter()
+            .map(|r| if r.is_finite() { 0.0 } else { f32::INFINITY })
+            .collect();
+        let diag = std::f32::consts::SQRT_2;
+        for v in 0..h {
+            for u in 0..w {
+                let mut best = d[u + w * v];
+                if u > 0 {
+                    best = best.min(d[u - 1 + w * v] + 1.0);
+                }
+                if v > 0 {
+                    best = best.min(d[u + w * (v - 1)] + 1.0);
+                    if u > 0 {
+                        best = best.min(d[u - 1 + w * (v - 1)] + diag);
+                    }
+                    if u + 1 < w {
+                        best = best.min(d[u + 1 + w * (v - 1)] + diag);
+                    }
+                }
+                d[u + w * v] = best;
+            }
+        }
+        for v in (0..h).rev() {
+            for u in (0..w).rev() {
+                let mut best = d[u + w * v];
+                if u + 1 < w {
+                    best = best.min(d[u + 1 + w * v] + 1.0);
+                }
+                if v + 1 < h {
+                    best = best.min(d[u + w * (v + 1)] + 1.0);
+                    if u + 1 < w {
+                        best = best.min(d[u + 1 + w * (v + 1)] + diag);
+                    }
+                    if u > 0 {
+                        best = best.min(d[u - 1 + w * (v + 1)] + diag);
+                    }
+                }
+                d[u + w * v] = best;
+            }
+        }
+        image.outside = d
+            .into_iter()
+            .map(|bins| ((bins - 1.5) / (FULL_BINS - 1.5)).clamp(0.0, 1.0))
+            .collect();
         Some(image)
     }
 
@@ -127,6 +194,38 @@ impl RangeImage {
         }
         through as f64 / covered.max(1) as f64
     }
+
+    /// Of `points` (target frame; the caller leaves out what the sensor could not
+    /// have seen anyway, such as points below the table's cut), the fraction that
+    /// the sensor's measurements contradict: more than `margin_m` in front of the
+    /// nearest surface seen along their ray, or on a ray that passed beside the
+    /// target (weighted from 0 within a bin or so of its silhouette, where the
+    /// sensor loses edge pixels, to 1 from [`FULL_BINS`] bins out). Points behind
+    /// the seen surface are occluded and count as consistent. 0 for no points.
+    pub fn contradicted_fraction(
+        &self,
+        points: impl Iterator<Item = Point3<f32>>,
+        margin_m: f32,
+    ) -> f64 {
+        let (mut total, mut contradicted) = (0usize, 0f64);
+        for p in points {
+            let Some((uv, range)) = self.project(&p) else {
+                continue;
+            };
+            total += 1;
+            let Some(cell) = self.cell(uv) else {
+                contradicted += 1.0;
+                continue;
+            };
+            let seen = self.nearest_m[cell];
+            contradicted += if range + margin_m < seen {
+                1.0
+            } else {
+                self.outside[cell] as f64
+            };
+        }
+        contradicted / total.max(1) as f64
+    }
 }
 
 #[cfg(test)]
@@ -165,5 +264,45 @@ mod tests {
         // Off to the side, where the sensor saw nothing: no evidence either way.
         let off = image.seen_through_fraction(std::iter::once(Point3::new(0.5, 0.0, 0.9)), 0.01);
         assert_eq!(off, 0.0);
+    }
+
+    #[test]
+    fn points_beside_the_silhouette_are_contradicted() {
+        // The sensor at the origin saw a 10 cm square wall at z = 1 m.
+        let wall: Vec<Point3<f32>> = (0..441)
+            .map(|i| {
+                Point3::new(
+                    (i % 21) as f32 * 0.005 - 0.05,
+                    (i / 21) as f32 * 0.005 - 0.05,
+                    1.0,
+                )
+            })
+            .collect();
+        let image = RangeImage::new(&wall, Point3::origin(), 0.004).unwrap();
+        let one = |p: Point3<f32>| image.contradicted_fraction(std::iter::once(p), 0.005);
+        // On the wall, or behind it: consistent.
+        assert_eq!(one(Point3::new(0.0, 0.0, 1.0)), 0.0);
+        assert_eq!(one(Point3::new(0.02, 0.0, 1.1)), 0.0);
+        // In front of it: seen through.
+        assert_eq!(one(Point3::new(0.0, 0.0, 0.95)), 1.0);
+        // Just past its edge (within a bin): the edge may have been lost, consistent.
+        assert_eq!(one(Point3::new(0.053, 0.0, 1.0)), 0.0);
+        // Between: partly.
+        let partly = one(Point3::new(0.061, 0.0, 1.0));
+        assert!(partly > 0.0 && partly < 1.0, "{partly}");
+        // Well beside it, and far outside the image: the sensor saw past.
+        assert_eq!(one(Point3::new(0.07, 0.0, 1.0)), 1.0);
+        assert_eq!(one(Point3::new(0.5, 0.0, 1.0)), 1.0);
+        // Behind the eye: no evidence; the fraction is over the others.
+        let mixed = image.contradicted_fraction(
+            [
+                Point3::new(0.0, 0.0, -1.0),
+                Point3::new(0.0, 0.0, 1.0),
+                Point3::new(0.09, 0.0, 1.0),
+            ]
+            .into_iter(),
+            0.005,
+        );
+        assert_eq!(mixed, 0.5);
     }
 }
