@@ -8,6 +8,7 @@ mod calibrate;
 mod camera;
 mod can;
 mod cell;
+mod eval;
 mod execute;
 mod fri;
 pub mod ipc;
@@ -90,6 +91,10 @@ pub enum Command {
     /// Segment the object out of a camera snapshot: table plane removed, the cluster
     /// nearest the workspace centre, written in the robot base frame.
     Segment(perceive::SegmentArgs),
+    /// The paper's simulation experiments: leave-one-out over a category (Figures 5
+    /// and 6) and cross-category generalisation (Table 1), grasps simulated on the test object.
+    #[command(subcommand)]
+    Eval(eval::EvalCommand),
     /// Register every model onto a segmented object: FPFH + RANSAC + ICP; per model
     /// the transform, fitting error eps and sigma, inlier fraction, RMSE, time.
     Register(perceive::RegisterArgs),
@@ -139,6 +144,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Campaign(args) => cell::campaign(&cli.config, args),
         Command::Segment(args) => perceive::segment(&cli.config, args),
         Command::Register(args) => perceive::register(&cli.config, args),
+        Command::Eval(which) => eval::run(&cli.config, which),
     }
 }
 

@@ -3,7 +3,7 @@
 //! another (knives); per test object, the epsilon of our grasp with each kernel and
 //! of best single.
 
-use super::experiment::{run_target, Registrar, Setup, Target, TargetReport};
+use super::experiment::{run_target, steps_per_target, Registrar, Setup, Target, TargetReport};
 use super::loo::{tally_rows, TallyRow};
 use super::view::ViewKind;
 use super::{check_request, EvalError};
@@ -72,7 +72,7 @@ pub fn cross_category(
     }
     let tasks = check_request(train, tasks, kernels)?;
     if let Some(p) = progress {
-        p.set_length(test.file.models.len() as u64);
+        p.set_length(test.file.models.len() as u64 * steps_per_target(tasks.len(), kernels.len()));
     }
     let targets: Vec<TargetReport> = (0..test.file.models.len())
         .into_par_iter()
@@ -82,11 +82,9 @@ pub fn cross_category(
                 index,
                 ordinal: index as u64,
             };
-            let r = run_target(setup, target, train, None, &tasks, kernels, registrar);
-            if let Some(p) = progress {
-                p.inc(1);
-            }
-            r
+            run_target(
+                setup, target, train, None, &tasks, kernels, registrar, progress,
+            )
         })
         .collect::<Result<_, _>>()?;
     let mut table = Vec::new();

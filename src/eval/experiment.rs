@@ -15,6 +15,7 @@ use crate::category::CategoryDb;
 use crate::cloud::PointCloud;
 use crate::geometry::PoseJson;
 use crate::mesh::procedural::instance_seed;
+use crate::plan::category::example_grasps;
 use crate::plan::{plan, Kernel, ModelFit, PlanError, PlanOptions, PlannedGrasp, Reachability};
 use crate::quality::autograsp::GraspObject;
 use crate::robot::hand::HandModel;
@@ -189,12 +190,47 @@ fn seeds(seed: u64, ordinal: u64) -> [u64; 3] {
 fn is_skippable(e: &PlanError) -> bool {
     matches!(
         e,
-        PlanError::NoFits | PlanError::NoGraspsForTask { .. } | PlanError::ZeroWeight { .. }
+        PlanError::NoFits
+            | PlanError::NoGraspsForTask { .. }
+            | PlanError::NoFitForTask { .. }
+            | PlanError::ZeroWeight { .. }
     )
+}
+
+/// Progress steps of one target: its registration, then one per task and kernel.
+pub fn steps_per_target(tasks: usize, kernels: usize) -> u64 {
+    1 + (tasks * kernels) as u64
+}
+
+/// Advances a progress bar through one target's steps; whatever is left (skipped
+/// tasks, an early return) is counted when it is dropped, so the bar ends full.
+struct Steps<'a> {
+    bar: Option<&'a indicatif::ProgressBar>,
+    left: u64,
+}
+
+impl Steps<'_> {
+    fn tick(&mut self) {
+        if self.left > 0 {
+            self.left -= 1;
+            if let Some(bar) = self.bar {
+                bar.inc(1);
+            }
+        }
+    }
+}
+
+impl Drop for Steps<'_> {
+    fn drop(&mut self) {
+        if let Some(bar) = self.bar {
+            bar.inc(self.left);
+        }
+    }
 }
 
 /// Runs one target: `train` holds the training models and their grasps (`exclude`
 /// names a model of `train` left out, the target itself in leave-one-out).
+/// `progress` advances by [`steps_per_target`] over the call.
 #[allow(clippy::too_many_arguments)]
 pub fn run_target(
     setup: &Setup,
@@ -204,7 +240,12 @@ pub fn run_target(
     tasks: &[String],
     kernels: &[Kernel],
     registrar: &dyn Registrar,
+    progress: Option<&indicatif::ProgressBar>,
 ) -> Result<TargetReport, EvalError> {
+    let mut steps = Steps {
+        bar: progress,
+        left: steps_per_target(tasks.len(), kernels.len()),
+    };
     let entry = &target.db.file.models[target.index];
     let name = entry.name.clone();
     let mesh = &target.db.meshes[target.index];
@@ -250,7 +291,9 @@ pub fn run_target(
         }
     };
     report.view_points = cloud.len();
-    let fits = match registrar.fits(&cloud, exclude, register_seed) {
+    let registered = registrar.fits(&cloud, exclude, register_seed);
+    steps.tick();
+    let fits = match registered {
         Ok(f) if f.is_empty() => {
             skip_all(&mut report, "registration: no model registered".into());
             return Ok(report);
@@ -348,6 +391,7 @@ pub fn run_target(
                 }
             };
             let ours = run_sim(&outcome.plan.grasp)?;
+            steps.tick();
             // Best single does not depend on the kernel: simulate it once per task.
             let single = match single {
                 Some(s) => s,
@@ -375,33 +419,4 @@ pub fn run_target(
         }
     }
     Ok(report)
-}
-
-// TEMPORARY until plan::category lands on main.
-fn example_grasps(
-    db: &CategoryDb,
-    fits: &[ModelFit],
-    task: &str,
-) -> Result<Vec<crate::plan::ExampleGrasp>, PlanError> {
-    let out: Vec<_> = db
-        .grasps_for(task)
-        .filter_map(|g| {
-            let model = fits.iter().position(|f| f.name == g.model)?;
-            Some(crate::plan::ExampleGrasp {
-                model,
-                task: g.task.clone(),
-                model_from_palm: g.params(),
-                spread_rad: g.spread_rad,
-                q: g.q,
-                sigma: g.sigma,
-            })
-        })
-        .collect();
-    if out.is_empty() {
-        return Err(PlanError::NoGraspsForTask {
-            task: task.into(),
-            available: String::new(),
-        });
-    }
-    Ok(out)
 }

@@ -4,7 +4,7 @@
 //! epsilons.
 
 use super::compare::{Pair, Tally};
-use super::experiment::{run_target, Registrar, Setup, Target, TargetReport};
+use super::experiment::{run_target, steps_per_target, Registrar, Setup, Target, TargetReport};
 use super::view::ViewKind;
 use super::{check_request, EvalError};
 use crate::category::CategoryDb;
@@ -88,7 +88,7 @@ pub fn tally_rows(
 }
 
 /// Runs leave-one-out over `db` for `tasks` (empty: the database's) and `kernels`;
-/// targets run in parallel, `progress` advances once per target.
+/// targets run in parallel; `progress` advances per registration and per run.
 pub fn leave_one_out(
     setup: &Setup,
     db: &CategoryDb,
@@ -106,7 +106,7 @@ pub fn leave_one_out(
     }
     let tasks = check_request(db, tasks, kernels)?;
     if let Some(p) = progress {
-        p.set_length(db.file.models.len() as u64);
+        p.set_length(db.file.models.len() as u64 * steps_per_target(tasks.len(), kernels.len()));
     }
     let targets: Vec<TargetReport> = (0..db.file.models.len())
         .into_par_iter()
@@ -117,11 +117,16 @@ pub fn leave_one_out(
                 index,
                 ordinal: index as u64,
             };
-            let r = run_target(setup, target, db, Some(name), &tasks, kernels, registrar);
-            if let Some(p) = progress {
-                p.inc(1);
-            }
-            r
+            run_target(
+                setup,
+                target,
+                db,
+                Some(name),
+                &tasks,
+                kernels,
+                registrar,
+                progress,
+            )
         })
         .collect::<Result<_, _>>()?;
     Ok(LooReport {
