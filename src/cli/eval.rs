@@ -354,9 +354,16 @@ pub fn loo(config: &Path, args: LooArgs) -> anyhow::Result<ExitCode> {
     }
     let cell = Cell::load(config, e.reach)?;
     let setup = cell.setup(e)?;
-    // Bad requests (empty database, a task without grasps) fail before the models
-    // are prepared for registration.
+    // Bad requests fail before the models are prepared for registration.
+    setup.validate()?;
     crate::eval::check_request(&db, &e.tasks, &kernels)?;
+    if db.file.models.len() < 2 {
+        return Err(crate::eval::EvalError::TooFewModels {
+            database: db.dir.display().to_string(),
+            count: db.file.models.len(),
+        }
+        .into());
+    }
     tracing::info!(seed = e.seed, category = %args.category, "leave-one-out");
     let started = Instant::now();
     let registrar = CategoryRegistrar::new(&db, cell.viewpoint(setup.view))
@@ -428,7 +435,14 @@ pub fn cross(config: &Path, args: CrossArgs) -> anyhow::Result<ExitCode> {
     let test = load_category_db(&e.db_dir, &args.test)?;
     let cell = Cell::load(config, e.reach)?;
     let setup = cell.setup(e)?;
+    setup.validate()?;
     crate::eval::check_request(&train, &e.tasks, &kernels)?;
+    if test.file.models.is_empty() {
+        return Err(crate::eval::EvalError::EmptyDatabase {
+            database: test.dir.display().to_string(),
+        }
+        .into());
+    }
     tracing::info!(seed = e.seed, train = %args.train, test = %args.test, "cross-category");
     let started = Instant::now();
     let registrar = CategoryRegistrar::new(&train, cell.viewpoint(setup.view))

@@ -40,6 +40,8 @@ pub struct CrossReport {
     pub tasks: Vec<String>,
     /// The kernels run.
     pub kernels: Vec<Kernel>,
+    /// Epsilon difference under which grasps count as equal.
+    pub equal_tolerance: f64,
     /// Whether the arm's reachability constrained the grasps.
     pub reachability: bool,
     /// The seed.
@@ -113,6 +115,7 @@ pub fn cross_category(
         table,
         tasks,
         kernels: kernels.to_vec(),
+        equal_tolerance: setup.equal_tolerance,
         reachability: setup.reach.is_some(),
         seed: setup.seed,
         targets,
