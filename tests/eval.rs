@@ -176,9 +176,10 @@ fn loo_on_three_mugs_tallies_simulated_grasps_and_never_registers_the_target() {
         for fit in fits {
             assert_ne!(fit["model"], target);
             assert!(models.contains(&fit["model"].as_str().unwrap()));
-            // A similar mug fits a complete cloud to within ~1 cm rms.
+            // Another mug fits a complete cloud to within ~3 cm rms (mugs differ by
+            // up to ~1.5 cm in radius and height; a gross misregistration is worse).
             let eps = f(&fit["eps_m2"]);
-            assert!(eps > 0.0 && eps < 1e-4, "{target}: {fit}");
+            assert!(eps > 0.0 && eps < 1e-3, "{target}: {fit}");
         }
         let runs = t["runs"].as_array().unwrap();
         assert_eq!(runs.len(), 2);
@@ -324,14 +325,7 @@ fn bad_requests_are_one_clear_error() {
     assert!(e.contains("mug_009") && e.contains("mug_000"), "{e}");
     let e = error_of(&["eval", "loo", "--category", "mug", "--models", "mug_002"]);
     assert!(e.contains("at least 2 models") && e.contains("1"), "{e}");
-    let e = error_of(&[
-        "eval",
-        "loo",
-        "--category",
-        "mug",
-        "--equal-tolerance",
-        "-1",
-    ]);
+    let e = error_of(&["eval", "loo", "--category", "mug", "--equal-tolerance=-1"]);
     assert!(e.contains("equal tolerance") && e.contains("-1"), "{e}");
     let e = Cli::try_parse_from([
         "cell",

@@ -500,12 +500,8 @@ fn bad_cloud_requests_are_clear_errors() {
     let db_dir = mug_subset_db(&dir, &["mug_000", "mug_001"]);
     let db_s = db_dir.to_str().unwrap();
     // --cloud needs the database whose models it registers.
-    let e = Cli::try_parse_from([
-        "cell", "plan", "--cloud", "o.ply", "--grasps", "g.json", "--task", "top",
-    ])
-    .unwrap_err()
-    .to_string();
-    assert!(e.contains("--db"), "{e}");
+    let e = plan_err(&["--cloud", "o.ply", "--grasps", "g.json", "--task", "top"]);
+    assert!(e.contains("--cloud o.ply") && e.contains("--db"), "{e}");
     // A task without grasps fails before any registration (the cloud is not read).
     let missing = dir.join("missing.ply");
     let e = plan_err(&[

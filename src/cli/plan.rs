@@ -121,7 +121,7 @@ pub struct PlanArgs {
     /// The object's segmented cloud (PLY/PCD, robot base frame, e.g. from `cell
     /// segment`): every model of --db is registered to it (FPFH + RANSAC + ICP) and
     /// the fits of those that register are planned over.
-    #[arg(long, requires = "db")]
+    #[arg(long)]
     pub cloud: Option<PathBuf>,
     /// Seed of the registration's RANSAC (--cloud).
     #[arg(long, default_value_t = 0)]
@@ -305,6 +305,12 @@ fn grasp_text(name: &str, g: &PlannedGrasp) -> String {
 /// Runs `cell plan`.
 pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     let cell = CellConfig::load(config)?;
+    if let (Some(cloud), None) = (&args.cloud, &args.db) {
+        anyhow::bail!(
+            "--cloud {}: give --db, the category database whose models are registered to it",
+            cloud.display()
+        );
+    }
     let db = args.db.as_deref().map(load_db).transpose()?;
     if let (Some(db), Some(_)) = (&db, &args.cloud) {
         // A task without grasps is an error before the registration runs.
@@ -324,7 +330,7 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
             let (input, summary) = register_cloud(&cell, db, cloud, &args)?;
             (cloud.as_path(), input, Some(summary))
         }
-        _ => unreachable!("clap requires --fits or --cloud, and --db with --cloud"),
+        _ => unreachable!("clap requires --fits or --cloud; --cloud without --db returned above"),
     };
     let fits = input.fits;
     let (grasps_path, grasps) = match (&db, &args.grasps) {
