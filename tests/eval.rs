@@ -245,6 +245,7 @@ fn loo_is_seeded() {
         reach: None,
         equal_tolerance: 0.01,
         seed,
+        placements: 1,
     };
     let kernels = [Kernel::LAPLACE_DEFAULT];
     let a = leave_one_out(&setup(3), &db, &[], &kernels, &registrar, None).unwrap();

@@ -69,6 +69,15 @@ pub enum ViewChoice {
     Partial,
 }
 
+/// The sensor position registration orients the target's normals towards.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum NormalsFrom {
+    /// The configured camera.
+    Camera,
+    /// 1 m above the object's centroid.
+    Above,
+}
+
 /// Options shared by both experiments.
 #[derive(Debug, Args)]
 pub struct ExperimentArgs {
@@ -90,6 +99,12 @@ pub struct ExperimentArgs {
     /// Points of a complete view.
     #[arg(long, default_value_t = 3000)]
     pub complete_points: usize,
+    /// Where registration takes the sensor to be, to orient the target's normals:
+    /// `camera` (the configured camera) or `above` (1 m above the object). Default:
+    /// camera for partial views, above for complete ones. A complete cloud has no
+    /// single sensor, so either orients part of its normals inward.
+    #[arg(long, value_enum)]
+    pub normals_from: Option<NormalsFrom>,
     /// Tasks to run, comma-separated (default: every task of the database).
     #[arg(long, value_delimiter = ',')]
     pub tasks: Vec<String>,
@@ -111,6 +126,10 @@ pub struct ExperimentArgs {
     /// Seed of placements, views and registration (printed with the results).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Seeded placements of every test object (the paper: 1); more placements give
+    /// more runs and steadier shares.
+    #[arg(long, default_value_t = 1)]
+    pub placements: usize,
     /// Write the better / equal / worse bar chart (PNG) here.
     #[arg(long)]
     pub png: Option<PathBuf>,
@@ -268,13 +287,18 @@ impl Cell {
             reach: self.robot.as_ref().map(|r| r as &dyn Reachability),
             equal_tolerance: args.equal_tolerance,
             seed: args.seed,
+            placements: args.placements,
         })
     }
 
-    /// The registration's viewpoint: the camera for partial views; none (a point
-    /// above the object) for complete ones.
-    fn viewpoint(&self, view: ViewKind) -> Option<[f64; 3]> {
-        (view == ViewKind::Partial).then(|| {
+    /// The registration's viewpoint: `choice`, else the camera for partial views
+    /// and a point above the object (`None`) for complete ones.
+    fn viewpoint(&self, view: ViewKind, choice: Option<NormalsFrom>) -> Option<[f64; 3]> {
+        let camera = match choice {
+            Some(c) => c == NormalsFrom::Camera,
+            None => view == ViewKind::Partial,
+        };
+        camera.then(|| {
             let eye = self.config.base_from_camera().translation.vector;
             [eye.x, eye.y, eye.z]
         })
@@ -316,6 +340,19 @@ fn tally_table(rows: &[TallyRow]) -> String {
     }
     text += "(eps: mean epsilon of our grasps; eps 1 / FC% 1: of best single; FC: force closure)\n";
     text
+}
+
+fn registration_text(r: &crate::eval::experiment::RegistrationStats) -> String {
+    format!(
+        "registration: {}/{} models registered; from the true pose: median {:.1} mm, tilt {:.1} deg, yaw {:.1} deg; tilt > 30 deg: {}, yaw > 30 deg: {}\n",
+        r.registered,
+        r.attempted,
+        r.median_offset_mm,
+        r.median_tilt_deg,
+        r.median_yaw_deg,
+        r.tilt_over_30_deg,
+        r.yaw_over_30_deg
+    )
 }
 
 fn skipped_text(targets: &[crate::eval::TargetReport]) -> String {
@@ -366,7 +403,7 @@ pub fn loo(config: &Path, args: LooArgs) -> anyhow::Result<ExitCode> {
     }
     tracing::info!(seed = e.seed, category = %args.category, "leave-one-out");
     let started = Instant::now();
-    let registrar = CategoryRegistrar::new(&db, cell.viewpoint(setup.view))
+    let registrar = CategoryRegistrar::new(&db, cell.viewpoint(setup.view, e.normals_from))
         .with_context(|| format!("{}: preparing the models", db.dir.display()))?;
     let bar = progress_bar(&format!("loo {}", args.category));
     let report = leave_one_out(&setup, &db, &e.tasks, &kernels, &registrar, Some(&bar));
@@ -403,12 +440,12 @@ struct Timed<'a, T> {
 }
 
 fn loo_text(r: &LooReport, seconds: f64, png: Option<&Path>) -> String {
-    let models = r.targets.len();
     let mut text = format!(
-        "leave-one-out: {} ({}), {} models, tasks {}; kernels {}; {} views; reach {}; seed {}\n",
+        "leave-one-out: {} ({}), {} models x {} placements, tasks {}; kernels {}; {} views; reach {}; seed {}\n",
         r.category,
         r.database,
-        models,
+        r.models,
+        r.placements,
         r.tasks.join(", "),
         kernel_names(&r.kernels),
         r.view.name(),
@@ -419,6 +456,7 @@ fn loo_text(r: &LooReport, seconds: f64, png: Option<&Path>) -> String {
         "{} runs simulated in {:.1} s; equal within epsilon {}\n",
         r.runs, seconds, r.equal_tolerance
     );
+    text += &registration_text(&r.registration);
     text += &tally_table(&r.rows);
     text += &skipped_text(&r.targets);
     if let Some(p) = png {
@@ -445,7 +483,7 @@ pub fn cross(config: &Path, args: CrossArgs) -> anyhow::Result<ExitCode> {
     }
     tracing::info!(seed = e.seed, train = %args.train, test = %args.test, "cross-category");
     let started = Instant::now();
-    let registrar = CategoryRegistrar::new(&train, cell.viewpoint(setup.view))
+    let registrar = CategoryRegistrar::new(&train, cell.viewpoint(setup.view, e.normals_from))
         .with_context(|| format!("{}: preparing the models", train.dir.display()))?;
     let bar = progress_bar(&format!("cross {} -> {}", args.train, args.test));
     let report = cross_category(
@@ -491,14 +529,24 @@ fn cross_text(r: &CrossReport, seconds: f64, png: Option<&Path>) -> String {
         if r.reachability { "on" } else { "off" },
         r.seed
     );
-    text += &format!("{} targets in {:.1} s\n", r.targets.len(), seconds);
+    text += &format!(
+        "{} targets ({} placements each) in {:.1} s\n",
+        r.targets.len(),
+        r.placements,
+        seconds
+    );
     text += &format!("{:<12} {:<6}", "test object", "task");
     for k in &r.kernels {
         text += &format!(" {:>10}", k.name());
     }
     text += &format!(" {:>11}  {}\n", "best single", "(from model)");
     for row in &r.table {
-        text += &format!("{:<12} {:<6}", row.target, row.task);
+        let name = if r.placements > 1 {
+            format!("{} #{}", row.target, row.placement)
+        } else {
+            row.target.clone()
+        };
+        text += &format!("{:<12} {:<6}", name, row.task);
         for k in &r.kernels {
             let eps = row
                 .epsilon
@@ -514,6 +562,7 @@ fn cross_text(r: &CrossReport, seconds: f64, png: Option<&Path>) -> String {
         );
     }
     text += "(epsilon of the grasp simulated on the test object; 0 = not force closure or a collision)\n";
+    text += &registration_text(&r.registration);
     text += &tally_table(&r.rows);
     text += &skipped_text(&r.targets);
     if let Some(p) = png {

@@ -3,7 +3,9 @@
 //! another (knives); per test object, the epsilon of our grasp with each kernel and
 //! of best single.
 
-use super::experiment::{run_target, steps_per_target, Registrar, Setup, Target, TargetReport};
+use super::experiment::{
+    run_target, steps_per_target, Registrar, RegistrationStats, Setup, Target, TargetReport,
+};
 use super::loo::{tally_rows, TallyRow};
 use super::view::ViewKind;
 use super::{check_request, EvalError};
@@ -12,11 +14,13 @@ use crate::plan::Kernel;
 use rayon::prelude::*;
 use serde::Serialize;
 
-/// One line of Table 1: a test object and task.
+/// One line of Table 1: a test object (at one placement) and task.
 #[derive(Debug, Clone, Serialize)]
 pub struct CrossRow {
     /// The test object.
     pub target: String,
+    /// Its placement (0-based).
+    pub placement: usize,
     /// The task.
     pub task: String,
     /// Epsilon of our grasp per kernel, in the report's kernel order.
@@ -46,12 +50,16 @@ pub struct CrossReport {
     pub reachability: bool,
     /// The seed.
     pub seed: u64,
+    /// Placements of each test object.
+    pub placements: usize,
     /// Table 1: one row per test object and task that ran.
     pub table: Vec<CrossRow>,
     /// Better / equal / worse per task and kernel.
     pub rows: Vec<TallyRow>,
     /// Tasks or targets that could not run.
     pub skipped: usize,
+    /// How well the training models registered to the targets.
+    pub registration: RegistrationStats,
     /// Per target: pose, fits, every run.
     pub targets: Vec<TargetReport>,
 }
@@ -74,15 +82,22 @@ pub fn cross_category(
     }
     let tasks = check_request(train, tasks, kernels)?;
     if let Some(p) = progress {
-        p.set_length(test.file.models.len() as u64 * steps_per_target(tasks.len(), kernels.len()));
+        p.set_length(
+            (test.file.models.len() * setup.placements) as u64
+                * steps_per_target(tasks.len(), kernels.len()),
+        );
     }
-    let targets: Vec<TargetReport> = (0..test.file.models.len())
+    let n = test.file.models.len();
+    // Placement-major: the first placement of every model gets the same seeds
+    // whatever the number of placements.
+    let targets: Vec<TargetReport> = (0..n * setup.placements)
         .into_par_iter()
-        .map(|index| {
+        .map(|ordinal| {
+            let index = ordinal % n;
             let target = Target {
                 db: test,
                 index,
-                ordinal: index as u64,
+                ordinal: ordinal as u64,
             };
             run_target(
                 setup, target, train, None, &tasks, kernels, registrar, progress,
@@ -96,6 +111,7 @@ pub fn cross_category(
             let Some(first) = runs.first() else { continue };
             table.push(CrossRow {
                 target: t.target.clone(),
+                placement: t.placement,
                 task: task.clone(),
                 epsilon: runs
                     .iter()
@@ -112,12 +128,14 @@ pub fn cross_category(
         view: setup.view,
         rows: tally_rows(&targets, &tasks, kernels, setup.equal_tolerance),
         skipped: targets.iter().map(|t| t.skipped.len()).sum(),
+        registration: RegistrationStats::of(&targets),
         table,
         tasks,
         kernels: kernels.to_vec(),
         equal_tolerance: setup.equal_tolerance,
         reachability: setup.reach.is_some(),
         seed: setup.seed,
+        placements: setup.placements,
         targets,
     })
 }
