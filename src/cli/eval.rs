@@ -28,21 +28,24 @@ use std::time::Instant;
 /// The experiments.
 #[derive(Debug, Subcommand)]
 pub enum EvalCommand {
-    /// Leave-one-out over a category (the paper's Figures 5 and 6): each model in turn
-    /// is the novel object, seen at a seeded random placement on the table, and the
-    /// other models are the database. Per task and kernel, our planned grasp and the
-    /// best-single grasp are simulated on the held-out mesh (approach until clear,
-    /// auto-grasp, Ferrari–Canny epsilon); the table gives the share of runs where
-    /// ours is better / equal / worse than best single and the mean epsilons.
+    /// Leave-one-out over a category (the paper's Figures 5 and 6).
+    ///
+    /// Each model in turn is the novel object, seen at a seeded random placement on
+    /// the table, and the other models are the database (registered to the view).
+    /// Per task and kernel, our planned grasp and the best-single grasp are simulated
+    /// on the held-out mesh (approach until clear, auto-grasp, Ferrari–Canny
+    /// epsilon); the table gives the share of runs where ours is better / equal /
+    /// worse than best single, the mean epsilons and the force-closure rates.
     #[command(
         after_help = "Example: cell eval loo --category mug --kernel all --png mug.png\n\
                       Bottles (the paper's Figure 6): cell eval loo --category bottle --kernel laplace,gaussian-r"
     )]
     Loo(LooArgs),
-    /// Cross-category generalisation (the paper's §5, Table 1): the database of one
-    /// category (e.g. hammers, `use` grasps by the handle) plans grasps on every model
-    /// of another (e.g. knives); per test object the epsilon of our grasp with each
-    /// kernel and of best single.
+    /// Cross-category generalisation (the paper's §5, Table 1).
+    ///
+    /// The database of one category (e.g. hammers, `use` grasps by the handle) plans
+    /// grasps on every model of another (e.g. knives); per test object the epsilon
+    /// of our grasp with each kernel and of best single, simulated on it.
     #[command(after_help = "Example: cell eval cross --train hammer --test knife")]
     Cross(CrossArgs),
 }
@@ -520,9 +523,10 @@ pub fn cross(config: &Path, args: CrossArgs) -> anyhow::Result<ExitCode> {
 
 fn cross_text(r: &CrossReport, seconds: f64, png: Option<&Path>) -> String {
     let mut text = format!(
-        "cross-category: train {} ({}), test {}; tasks {}; {} views; reach {}; seed {}\n",
-        r.train.rsplit('/').next().unwrap_or(&r.train),
+        "cross-category: train {} ({}), test {} ({}); tasks {}; {} views; reach {}; seed {}\n",
+        r.train_category,
         r.train,
+        r.test_category,
         r.test,
         r.tasks.join(", "),
         r.view.name(),

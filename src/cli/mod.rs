@@ -91,8 +91,7 @@ pub enum Command {
     /// Segment the object out of a camera snapshot: table plane removed, the cluster
     /// nearest the workspace centre, written in the robot base frame.
     Segment(perceive::SegmentArgs),
-    /// The paper's simulation experiments: leave-one-out over a category (Figures 5
-    /// and 6) and cross-category generalisation (Table 1), grasps simulated on the test object.
+    /// The paper's simulation experiments: leave-one-out (Figs. 5, 6) and cross-category (Table 1).
     #[command(subcommand)]
     Eval(eval::EvalCommand),
     /// Register every model onto a segmented object: FPFH + RANSAC + ICP; per model

@@ -34,8 +34,12 @@ pub struct CrossRow {
 /// The result of a cross-category experiment.
 #[derive(Debug, Clone, Serialize)]
 pub struct CrossReport {
+    /// Training category.
+    pub train_category: String,
     /// Training database directory.
     pub train: String,
+    /// Test category.
+    pub test_category: String,
     /// Test database directory (its meshes are the test objects).
     pub test: String,
     /// Complete or partial views.
@@ -123,7 +127,9 @@ pub fn cross_category(
         }
     }
     Ok(CrossReport {
+        train_category: train.file.category.name().to_string(),
         train: train.dir.display().to_string(),
+        test_category: test.file.category.name().to_string(),
         test: test.dir.display().to_string(),
         view: setup.view,
         rows: tally_rows(&targets, &tasks, kernels, setup.equal_tolerance),
