@@ -520,7 +520,8 @@ pub fn run_target(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::pose_from_params;
+    use crate::geometry::{pose_from_params, Pose};
+    use std::f64::consts::FRAC_PI_2;
 
     #[test]
     fn tilt_and_yaw_separate_lying_from_turned() {
@@ -541,10 +542,10 @@ mod tests {
             (0.0, 2.0944f64.to_degrees()),
         );
         // Lying on its side (about x), no twist about the vertical.
-        let lying = object * pose_from_params(&[0.0, 0.0, 0.0, 1.5708, 0.0, 0.0]);
+        let lying = object * pose_from_params(&[0.0, 0.0, 0.0, FRAC_PI_2, 0.0, 0.0]);
         close(
             tilt_and_yaw_deg(&object, &lying),
-            (1.5708f64.to_degrees(), 0.0),
+            (FRAC_PI_2.to_degrees(), 0.0),
         );
         // Upside down.
         let (t, _) = tilt_and_yaw_deg(
