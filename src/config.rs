@@ -323,7 +323,7 @@ mod tests {
             "{err}"
         );
         let bad = dir.join("bad.toml");
-        std::fs::write(&bad, text.replace("cycle_s = 0.001", "cycle_s = -1.0")).unwrap();
+        std::fs::write(&bad, text.replace("cycle_s = 0.002", "cycle_s = -1.0")).unwrap();
         let err = CellConfig::load(&bad).unwrap_err().to_string();
         assert!(err.contains("fri.cycle_s"), "{err}");
         std::fs::remove_dir_all(&dir).ok();

@@ -144,6 +144,11 @@ fn one_trial_through_every_process_then_a_killed_stage_fails_the_trial_and_rejoi
     assert_eq!(row.trial.method, "laplace");
     let grading = row.grading.as_ref().expect("graded");
     assert_eq!(format!("{:?}", grading.grade), format!("{grade:?}"));
+    // The snapshot is kept, organised, for replay.
+    let snapshot = row.trial.snapshot_path.as_ref().expect("snapshot recorded");
+    let cloud = graspcell::cloud::io::read_cloud(snapshot).unwrap();
+    assert_eq!((cloud.width, cloud.height), (640, 480));
+    assert!(cloud.valid_points().count() > 100_000);
     drop(log);
 
     // 2. kill -9 of perception mid-trial: the trial fails with that cause, the arm holds.
@@ -246,4 +251,59 @@ fn every_systemd_unit_starts_a_stage_binary_with_arguments_it_accepts() {
         );
         assert!(unit.contains("Type=notify") && unit.contains("WatchdogSec="));
     }
+}
+
+#[test]
+fn systemd_analyze_verify_passes_on_every_unit_with_the_binaries_installed() {
+    // A root with the system's own units, ours in /etc/systemd/system and the stage
+    // binaries in /usr/local/bin, as an installation has them.
+    let analyze = Path::new("/usr/bin/systemd-analyze");
+    assert!(
+        analyze.exists(),
+        "systemd-analyze is missing: install Debian's systemd package (.ci/run does)"
+    );
+    let root = std::env::temp_dir().join(format!("gc-systemd-root-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let units = root.join("etc/systemd/system");
+    let bin = root.join("usr/local/bin");
+    let system = root.join("usr/lib/systemd/system");
+    for dir in [&units, &bin, &system] {
+        std::fs::create_dir_all(dir).unwrap();
+    }
+    for entry in std::fs::read_dir("/usr/lib/systemd/system")
+        .unwrap()
+        .flatten()
+    {
+        let path = entry.path();
+        if path.is_file() && !path.is_symlink() {
+            std::fs::copy(&path, system.join(entry.file_name())).unwrap();
+        }
+    }
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir("systemd").unwrap().flatten() {
+        std::fs::copy(entry.path(), units.join(entry.file_name())).unwrap();
+        names.push(entry.file_name().to_string_lossy().into_owned());
+    }
+    names.sort();
+    for stage in graspcell::cell::STAGES {
+        let name = format!("cell-{stage}");
+        let target = bin.join(&name);
+        if std::fs::hard_link(bin_dir().join(&name), &target).is_err() {
+            std::fs::copy(bin_dir().join(&name), &target).unwrap();
+        }
+    }
+    let out = std::process::Command::new(analyze)
+        .arg("verify")
+        .arg(format!("--root={}", root.display()))
+        .args(&names)
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_dir_all(&root);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && stderr.trim().is_empty(),
+        "systemd-analyze verify {names:?}: {}\n{stderr}",
+        out.status
+    );
+    assert_eq!(names.len(), graspcell::cell::STAGES.len() + 1, "{names:?}");
 }

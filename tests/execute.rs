@@ -528,7 +528,6 @@ fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
             &format!("urdf = {:?}", cell.robot.urdf.display().to_string()),
         )
         .replace("127.0.0.1:49938", "127.0.0.1:0")
-        .replace("cycle_s = 0.001", "cycle_s = 0.002")
         .replace("timeout_s = 0.1", "timeout_s = 0.5")
         .replace(
             "\"virtual:hand\"",

@@ -45,6 +45,10 @@ struct Args {
     /// UNACCEPTABLE (the robot drops to monitor).
     #[arg(long, value_name = "BAD,UNACCEPTABLE", default_value = "2,5")]
     consecutive_misses: String,
+    /// The KRL program loops around `friStart`: after the link drops the robot to
+    /// monitor mode it asks for command mode again (granted once quality is PERFECT).
+    #[arg(long)]
+    restart_after_drop: bool,
     /// Stop after this many seconds; runs until killed if not given.
     #[arg(long)]
     seconds: Option<f64>,
@@ -76,6 +80,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         cycle_s: args.cycle_ms / 1000.0,
         tracking_time_constant_s: args.tracking_time_constant_s,
         quality: QualityThresholds::from_text(&args.miss_rates, &args.consecutive_misses)?,
+        restart_after_drop: args.restart_after_drop,
         ..base
     };
     if let Some(text) = &args.initial_joints {

@@ -127,6 +127,9 @@ pub fn run(
             })
         }
     }
+    // Before any device thread starts (they inherit it): the control thread must not
+    // be preempted by ordinary work while it holds the FRI driver's lock.
+    crate::hw::realtime::request_priority("executor", crate::hw::realtime::CONTROL_PRIORITY);
     let robot = Arc::new(Robot::load(config)?);
     let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
     let mut fri = config.fri.clone();
@@ -179,9 +182,25 @@ pub fn run(
         arm_rad: driver.status().measured_rad,
         hand_rad: [0.0; crate::ipc::HAND_JOINTS],
     };
+    // The hand is brought up while the cell is idle, once the arm commands (its
+    // fingers move while initialising); a failed attempt is retried a little later.
+    let mut next_hand_attempt = std::time::Instant::now();
     while !stop_requested() {
         watchdog.ping();
         while requests.try_receive()?.is_some() {}
+        if !executor.hand_ready()
+            && driver.status().commanding
+            && std::time::Instant::now() >= next_hand_attempt
+        {
+            match executor.prepare_hand() {
+                Ok(()) => tracing::info!("hand ready"),
+                Err(e) => {
+                    tracing::warn!("hand bring-up: {e}; retrying in 5 s");
+                    next_hand_attempt =
+                        std::time::Instant::now() + std::time::Duration::from_secs(5);
+                }
+            }
+        }
         // Only measured joints: none before the robot's first measurement.
         if driver.status().last_seq.is_some() {
             joints_pub.send(&JointStates {

@@ -88,6 +88,7 @@ pub struct Cell {
     stages: Vec<Process>,
     sims: Vec<Process>,
     fri_addr: String,
+    fri_cycle_s: f64,
     can_interface: String,
     operator: Option<Operator>,
     next_trial_id: u64,
@@ -173,6 +174,7 @@ impl Cell {
             stages: Vec::new(),
             sims: Vec::new(),
             fri_addr,
+            fri_cycle_s: config.fri.cycle_s,
             can_interface,
             operator: None,
             next_trial_id: 0,
@@ -253,6 +255,9 @@ impl Cell {
                 self.options.stage.config.display().to_string(),
                 "--initial-joints".into(),
                 home.join(","),
+                "--cycle-ms".into(),
+                (self.fri_cycle_s * 1e3).to_string(),
+                "--restart-after-drop".into(),
             ];
             let arm = spawn(&self.options.bin_dir, "cell-sim-arm", &arm_args, false)?;
             self.sims.push(Process {

@@ -63,6 +63,7 @@ struct Trial {
     began: Instant,
     started_at: UtcTimestamp,
     cloud_ns: u64,
+    snapshot_path: Option<PathBuf>,
     fits: Option<Fits>,
     plan: Option<GraspPlan>,
     first_command_ns: u64,
@@ -336,9 +337,9 @@ impl Logger {
             object,
             placement,
             campaign_id,
-            snapshot_path: None,
+            snapshot_path: trial.snapshot_path.clone(),
             fits: fits_json(trial.fits.as_ref()),
-            planned_pose: planned.as_ref().map(|p| p.0.clone()),
+            planned_pose: planned.as_ref().map(|p| p.0),
             planned_joints: planned.map(|p| p.1),
             outcome: Some(json!({
                 "cell_trial_id": trial_id,
@@ -367,6 +368,38 @@ impl Logger {
             cause,
             timings,
         ))
+    }
+}
+
+/// Where the snapshot of trial `trial_id` is kept: a binary PCD in the camera's
+/// optical frame, which the camera's `replay` backend reads back.
+pub fn snapshot_path(run_dir: &Path, trial_id: u64) -> PathBuf {
+    run_dir.join("snapshots").join(format!("{trial_id}.pcd"))
+}
+
+/// Writes the trial's snapshot (atomically); its path, or `None` (logged) when it
+/// could not be written — the trial is still recorded.
+fn save_snapshot(run_dir: &Path, cloud: &crate::ipc::CloudSample) -> Option<PathBuf> {
+    let trial_id = cloud.header().trial_id;
+    let path = snapshot_path(run_dir, trial_id);
+    let written = path
+        .parent()
+        .map_or(Ok(()), std::fs::create_dir_all)
+        .map_err(|e| e.to_string())
+        .and_then(|()| {
+            crate::cloud::io::write_cloud(
+                &path,
+                &cloud.to_cloud(),
+                crate::cloud::io::CloudEncoding::Binary,
+            )
+            .map_err(|e| e.to_string())
+        });
+    match written {
+        Ok(()) => Some(path),
+        Err(e) => {
+            tracing::error!(trial_id, "snapshot not saved: {e}");
+            None
+        }
     }
 }
 
@@ -428,6 +461,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
                     began: Instant::now(),
                     started_at: UtcTimestamp::now(),
                     cloud_ns: 0,
+                    snapshot_path: None,
                     fits: None,
                     plan: None,
                     first_command_ns: 0,
@@ -437,9 +471,10 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             );
         }
         while let Some(cloud) = clouds.try_receive()? {
-            let h = cloud.header();
+            let h = *cloud.header();
             if let Some(t) = logger.trials.get_mut(&h.trial_id) {
                 t.cloud_ns = h.stamp_ns;
+                t.snapshot_path = save_snapshot(&logger.options.run_dir, &cloud);
             }
         }
         while let Some(f) = fits.try_receive()? {

@@ -74,8 +74,8 @@ pub enum CellError {
     Category {
         /// The category.
         category: String,
-        /// Why.
-        source: crate::category::CategoryError,
+        /// Why (boxed: it is large, and rare).
+        source: Box<crate::category::CategoryError>,
     },
     /// A trial setup file is missing or malformed.
     #[error("trial setup {path}: {problem}")]
@@ -291,7 +291,7 @@ pub fn load_category(
     crate::category::CategoryDb::load(&db_dir.join(category)).map_err(|source| {
         CellError::Category {
             category: category.to_string(),
-            source,
+            source: Box::new(source),
         }
     })
 }

@@ -24,11 +24,10 @@ use crate::cloud::PointCloud;
 use crate::config::CellConfig;
 use crate::geometry::Pose;
 use crate::ipc::{
-    monotonic_now_ns, wait_any, CloudSample, CloudTopic, Domain, FitStatus, Fits, ModelFit, Stage,
-    TrialRequest, Wakeable, MAX_FITS,
+    monotonic_now_ns, wait_any, CloudTopic, Domain, FitStatus, Fits, ModelFit, Stage, TrialRequest,
+    Wakeable, MAX_FITS,
 };
 use crate::register::{perceive, ModelSet, RegisterParams, RegistrationStatus};
-use nalgebra::Point3;
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 
@@ -70,19 +69,20 @@ impl ModelSets {
     }
 }
 
-/// The cloud of a received snapshot (camera optical frame, organisation kept).
-pub fn sample_cloud(sample: &CloudSample) -> PointCloud {
-    let header = sample.header();
-    PointCloud {
-        points: sample
-            .points()
-            .iter()
-            .map(|&p| Point3::<f32>::from(p))
-            .collect(),
-        normals: None,
-        width: header.width,
-        height: header.height,
-    }
+/// The categories of the databases under `db_dir` (directories with a
+/// `category.json`), sorted.
+pub fn categories(db_dir: &std::path::Path) -> Result<Vec<String>, CellError> {
+    let entries = std::fs::read_dir(db_dir).map_err(|source| CellError::Io {
+        path: db_dir.to_path_buf(),
+        source,
+    })?;
+    let mut names: Vec<String> = entries
+        .flatten()
+        .filter(|e| e.path().join("category.json").is_file())
+        .filter_map(|e| e.file_name().to_str().map(str::to_string))
+        .collect();
+    names.sort();
+    Ok(names)
 }
 
 /// Segments and registers one snapshot; the fits message for `trial_id`. A
@@ -156,6 +156,16 @@ pub fn run(
         params: RegisterParams::default(),
         loaded: HashMap::new(),
     };
+    // Every category's models are prepared before the stage reports ready, so no
+    // trial waits for them.
+    for category in categories(&options.db_dir)? {
+        let started = std::time::Instant::now();
+        if let Err(e) = sets.get(&category) {
+            tracing::error!("{e}");
+        } else {
+            tracing::info!(%category, ms = started.elapsed().as_secs_f64() * 1e3, "models ready");
+        }
+    }
     let stage = Stage::start(domain, "perceive")?;
     let fits_out = stage.publisher::<Fits>()?;
     let clouds = stage.cloud_subscriber(CloudTopic::Camera)?;
@@ -187,7 +197,7 @@ pub fn run(
                 tracing::error!(trial_id = sample.header().trial_id, "bad cloud: {e}");
                 continue;
             }
-            pending_clouds.insert(sample.header().trial_id, sample_cloud(&sample));
+            pending_clouds.insert(sample.header().trial_id, sample.to_cloud());
         }
         let ready: Vec<u64> = pending_clouds
             .keys()

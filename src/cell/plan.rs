@@ -12,6 +12,8 @@ use super::notify::{self, Watchdog};
 use super::{stop_requested, CellError, TICK};
 use crate::category::CategoryDb;
 use crate::config::CellConfig;
+use crate::execute::{validate_grasp, ExecutionRequest, ExecutorConfig, SafetyCheck, SafetyLimits};
+use crate::geometry::PoseJson;
 use crate::ipc::Domain;
 use crate::ipc::{
     monotonic_now_ns, wait_any, FailureCause, FitStatus, Fits, GraspPlan, JointStates, Stage,
@@ -22,6 +24,7 @@ use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, Robot};
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// The methods a trial request may name.
 pub const METHODS: [&str; 4] = ["laplace", "gaussian", "gaussian-r", "best-single"];
@@ -156,29 +159,70 @@ pub fn plan_trial(
     Ok(grasp)
 }
 
-/// Re-solves the grasp's inverse kinematics seeded first with `current` (the arm's
-/// joints now): the pre-grasp near the arm, the grasp near the pre-grasp. The
-/// planner only needs some solution to know a pose is reachable, and from its
-/// generic seeds it may find one on another branch (shoulder turned by half a
-/// turn); the executor's joint-space move there would sweep the palm out of the
-/// workspace. Keeps the planner's solutions if these seeds find nothing better.
-pub fn solve_near(robot: &Robot, grasp: &mut PlannedGrasp, current: &ArmJoints) {
+/// Picks joint solutions for `grasp` whose motions from the arm at `current` the
+/// executor will accept ([`validate_grasp`]: pre-grasp move, approach, lift, with
+/// its safety checks). The planner only needs some IK solution to know a pose is
+/// reachable, and from its generic seeds it may find one on another branch
+/// (shoulder turned by half a turn) that the executor's joint-space move could not
+/// reach safely. Pre-grasp solutions are tried seeded first with `current` and the
+/// planner's solution, then the IK's spread of seeds; the grasp is solved near each.
+/// A reachability failure, with the executor's refusal of the first candidate,
+/// when none is accepted.
+pub fn executable_joints(
+    robot: &Robot,
+    check: &SafetyCheck,
+    config: &ExecutorConfig,
+    grasp: &mut PlannedGrasp,
+    current: &ArmJoints,
+) -> Result<(), PlanFailure> {
     let hand = HandPose {
         spread_rad: grasp.spread_rad,
         flex_rad: [0.0; 3],
     };
     let mut seeds = vec![*current];
     seeds.extend(grasp.pregrasp_joints);
-    let Ok(pre) = robot.reach(&grasp.pregrasp_pose, &hand, &seeds) else {
-        return;
+    let mut first_refusal = None;
+    let mut accepted = None;
+    let _ = robot.ik.solve_with(&grasp.pregrasp_pose, &seeds, |pre| {
+        if robot.collision_at(&pre.joints, &hand).is_some() {
+            return false;
+        }
+        let mut near = vec![pre.joints];
+        near.extend(grasp.joints);
+        let Ok(at) = robot.reach(&grasp.pose, &hand, &near) else {
+            return false;
+        };
+        let request = ExecutionRequest {
+            palm: PoseJson::from(&grasp.pose),
+            pregrasp: PoseJson::from(&grasp.pregrasp_pose),
+            joints_rad: at.joints,
+            pregrasp_joints_rad: pre.joints,
+            spread_rad: grasp.spread_rad,
+        };
+        match validate_grasp(check, config, &request, current) {
+            Ok(_) => {
+                accepted = Some((pre.joints, at.joints));
+                true
+            }
+            Err(e) => {
+                first_refusal.get_or_insert(e);
+                false
+            }
+        }
+    });
+    let Some((pre, at)) = accepted else {
+        let detail = match first_refusal {
+            Some(refusal) => format!("no joint solution the executor accepts: {refusal}"),
+            None => "no collision-free joint solution of the pre-grasp and grasp poses".into(),
+        };
+        return Err(PlanFailure {
+            cause: FailureCause::Reachability,
+            detail,
+        });
     };
-    let mut seeds = vec![pre.joints];
-    seeds.extend(grasp.joints);
-    let Ok(at) = robot.reach(&grasp.pose, &hand, &seeds) else {
-        return;
-    };
-    grasp.pregrasp_joints = Some(pre.joints);
-    grasp.joints = Some(at.joints);
+    grasp.pregrasp_joints = Some(pre);
+    grasp.joints = Some(at);
+    Ok(())
 }
 
 /// The message for a planned grasp.
@@ -212,7 +256,11 @@ const PENDING_TRIALS: usize = 16;
 
 /// Runs the plan stage until SIGTERM/SIGINT; databases come from `db_dir`.
 pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), CellError> {
-    let robot = Robot::load(config)?;
+    let robot = Arc::new(Robot::load(config)?);
+    // The executor's own checks and settings: a plan is published only when the
+    // executor will accept its motions.
+    let safety = SafetyCheck::new(Arc::clone(&robot), SafetyLimits::from_cell(config, &robot));
+    let motions = ExecutorConfig::from_cell(config);
     let mut dbs = Databases::new(db_dir);
     let stage = Stage::start(domain, "plan")?;
     let plans = stage.publisher::<GraspPlan>()?;
@@ -255,11 +303,13 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
             };
             let method = request.method().unwrap_or("?").to_string();
             let started = std::time::Instant::now();
-            let msg = match plan_trial(config, &robot, &mut dbs, &request, &fits) {
-                Ok(mut grasp) => {
-                    solve_near(&robot, &mut grasp, &arm_now);
-                    plan_message(trial_id, &method, &grasp)?
-                }
+            let planned =
+                plan_trial(config, &robot, &mut dbs, &request, &fits).and_then(|mut grasp| {
+                    executable_joints(&robot, &safety, &motions, &mut grasp, &arm_now)
+                        .map(|()| grasp)
+                });
+            let msg = match planned {
+                Ok(grasp) => plan_message(trial_id, &method, &grasp)?,
                 Err(failure) => {
                     tracing::warn!(trial_id, cause = ?failure.cause, "no plan: {}", failure.detail);
                     let method = if method.len() <= crate::ipc::NAME_CAPACITY {
@@ -294,6 +344,7 @@ pub(crate) fn trim<T>(map: &mut BTreeMap<u64, T>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f64::consts::PI;
 
     #[test]
     fn methods_map_to_kernels() {
@@ -307,6 +358,66 @@ mod tests {
         trim(&mut map);
         assert_eq!(map.len(), PENDING_TRIALS);
         assert_eq!(*map.keys().next().unwrap(), 40 - PENDING_TRIALS as u64);
+    }
+
+    /// A top-down grasp over the table at `xyz` with its pre-grasp 10 cm above.
+    fn top_grasp(xyz: [f64; 3]) -> PlannedGrasp {
+        let pose = crate::geometry::pose_from_params(&[xyz[0], xyz[1], xyz[2], PI, 0.0, 0.0]);
+        PlannedGrasp {
+            pose,
+            pregrasp_pose: nalgebra::Translation3::new(0.0, 0.0, 0.1) * pose,
+            spread_rad: 0.0,
+            joints: None,
+            pregrasp_joints: None,
+            reachable: true,
+            unreachable: None,
+            objective: 1.0,
+            log_objective: 0.0,
+        }
+    }
+
+    #[test]
+    fn published_joints_are_ones_the_executor_accepts_even_from_a_far_branch() {
+        let robot = Arc::new(crate::robot::shipped_robot());
+        let config = crate::config::CellConfig::load(std::path::Path::new(
+            crate::config::DEFAULT_CONFIG_PATH,
+        ))
+        .unwrap();
+        let check = SafetyCheck::new(Arc::clone(&robot), SafetyLimits::from_cell(&config, &robot));
+        let motions = ExecutorConfig::from_cell(&config);
+        let home = super::super::harness::HOME_JOINTS_RAD;
+        let mut grasp = top_grasp([0.6, 0.1, 0.2]);
+        // The planner's solution on the branch with A1 turned by half a turn.
+        let far = robot
+            .ik
+            .solve_from(&grasp.pregrasp_pose, &[-2.9, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0]);
+        grasp.pregrasp_joints = Some(far.joints);
+        let far_grasp = robot.ik.solve_from(&grasp.pose, &far.joints);
+        let from_far = ExecutionRequest {
+            palm: PoseJson::from(&grasp.pose),
+            pregrasp: PoseJson::from(&grasp.pregrasp_pose),
+            joints_rad: far_grasp.joints,
+            pregrasp_joints_rad: far.joints,
+            spread_rad: 0.0,
+        };
+        assert!(
+            validate_grasp(&check, &motions, &from_far, &home).is_err(),
+            "test setup: the far branch is refused"
+        );
+        executable_joints(&robot, &check, &motions, &mut grasp, &home).unwrap();
+        let request = ExecutionRequest {
+            palm: PoseJson::from(&grasp.pose),
+            pregrasp: PoseJson::from(&grasp.pregrasp_pose),
+            joints_rad: grasp.joints.unwrap(),
+            pregrasp_joints_rad: grasp.pregrasp_joints.unwrap(),
+            spread_rad: 0.0,
+        };
+        validate_grasp(&check, &motions, &request, &home).unwrap();
+        // A grasp with the palm in the table has no solution: a reachability failure.
+        let mut low = top_grasp([0.6, 0.1, 0.01]);
+        let failure = executable_joints(&robot, &check, &motions, &mut low, &home).unwrap_err();
+        assert_eq!(failure.cause, FailureCause::Reachability, "{failure:?}");
+        assert!(low.joints.is_none());
     }
 
     #[test]

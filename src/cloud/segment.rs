@@ -81,6 +81,9 @@ pub struct SegmentParams {
     pub cluster_tolerance_m: f64,
     /// Smallest cluster that can be the object.
     pub min_cluster_points: usize,
+    /// Clusters this close to the object's main cluster are parts of it cut off by
+    /// depth-edge dropouts (a mug's handle), and join it (m).
+    pub merge_distance_m: f64,
     /// Seed of the plane RANSAC.
     pub seed: u64,
 }
@@ -98,6 +101,7 @@ impl Default for SegmentParams {
             plane_min_fraction: 0.2,
             cluster_tolerance_m: 0.01,
             min_cluster_points: 50,
+            merge_distance_m: 0.03,
             seed: 0,
         }
     }
@@ -123,6 +127,7 @@ impl SegmentParams {
             ("plane_voxel_m", self.plane_voxel_m),
             ("plane_distance_m", self.plane_distance_m),
             ("cluster_tolerance_m", self.cluster_tolerance_m),
+            ("merge_distance_m", self.merge_distance_m),
         ];
         for (name, value) in positive {
             if !(value > 0.0 && value.is_finite()) {
@@ -270,6 +275,54 @@ pub fn euclidean_clusters(points: &[Point3<f32>], tolerance_m: f64) -> Vec<Vec<u
     clusters
 }
 
+/// The object among `clusters` of `points`: of the clusters with at least
+/// `min_cluster_points` and a fair share (a quarter) of the largest one's points, the
+/// one whose centroid is nearest the workspace centre (x, y) — so a handle or a
+/// speck cut off by depth-edge dropouts is never taken for the object — together
+/// with every other cluster within `merge_distance_m` of it (such cut-off parts).
+/// Sorted indices into `points`; `None` when no cluster is large enough.
+fn choose_object(
+    points: &[Point3<f32>],
+    clusters: &[Vec<usize>],
+    [lo, hi]: [[f64; 3]; 2],
+    params: &SegmentParams,
+) -> Option<Vec<usize>> {
+    let largest = clusters.iter().map(Vec::len).max()?;
+    let centre = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
+    let main = clusters
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.len() >= params.min_cluster_points && 4 * c.len() >= largest)
+        .map(|(k, c)| {
+            let (sx, sy) = c.iter().fold((0.0, 0.0), |(sx, sy), &i| {
+                (sx + points[i].x as f64, sy + points[i].y as f64)
+            });
+            let n = c.len() as f64;
+            (
+                (sx / n - centre[0]).powi(2) + (sy / n - centre[1]).powi(2),
+                k,
+            )
+        })
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, k)| k)?;
+    let main_points: Vec<Point3<f32>> = clusters[main].iter().map(|&i| points[i]).collect();
+    let index = KdIndex::new(&main_points);
+    let reach2 = (params.merge_distance_m * params.merge_distance_m) as f32;
+    let mut indices = clusters[main].clone();
+    for (k, cluster) in clusters.iter().enumerate() {
+        let near = |&i: &usize| {
+            index
+                .nearest(&points[i])
+                .is_some_and(|(_, d2)| d2 <= reach2)
+        };
+        if k != main && cluster.iter().any(near) {
+            indices.extend_from_slice(cluster);
+        }
+    }
+    indices.sort_unstable();
+    Some(indices)
+}
+
 /// The object's points, in the robot base frame, out of the camera's snapshot
 /// `cloud_camera` (optical frame) seen from `base_from_camera`.
 pub fn segment_object(
@@ -318,26 +371,11 @@ pub fn segment_object(
         .filter(|p| plane.distance(p) > params.plane_distance_m)
         .collect();
     let clusters = euclidean_clusters(&above, params.cluster_tolerance_m);
-    let centre = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
-    let object = clusters
-        .iter()
-        .filter(|c| c.len() >= params.min_cluster_points)
-        .map(|c| {
-            let (sx, sy) = c.iter().fold((0.0, 0.0), |(sx, sy), &i| {
-                (sx + above[i].x as f64, sy + above[i].y as f64)
-            });
-            let n = c.len() as f64;
-            let d2 = (sx / n - centre[0]).powi(2) + (sy / n - centre[1]).powi(2);
-            (d2, c)
-        })
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map(|(_, c)| c)
-        .ok_or(SegmentError::NoObject {
+    let indices =
+        choose_object(&above, &clusters, [lo, hi], params).ok_or(SegmentError::NoObject {
             above: above.len(),
             min_points: params.min_cluster_points,
         })?;
-    let mut indices = object.clone();
-    indices.sort_unstable();
     Ok(PointCloud::from_points(
         indices.iter().map(|&i| above[i]).collect(),
     ))
@@ -378,6 +416,48 @@ mod tests {
         }
         pts.push(Point3::new(0.25, 0.35, 0.05));
         (pts, object)
+    }
+
+    #[test]
+    fn a_cut_off_handle_joins_its_body_and_a_speck_at_the_centre_is_not_the_object() {
+        // Body: 400 points around (0.70, 0.15); handle: 60 points 1.5 cm beside it;
+        // speck: 60 points right at the workspace centre; far box: 500 points 30 cm away.
+        let grid = |x0: f32, y0: f32, nx: usize, ny: usize| -> Vec<Point3<f32>> {
+            (0..nx * ny)
+                .map(|k| {
+                    let (i, j) = (k % nx, k / nx);
+                    Point3::new(x0 + i as f32 * 0.002, y0, 0.02 + j as f32 * 0.002)
+                })
+                .collect()
+        };
+        let mut points = grid(0.68, 0.15, 20, 20);
+        let handle_start = points.len();
+        points.extend(grid(0.68 + 0.038 + 0.015, 0.15, 6, 10));
+        let speck_start = points.len();
+        points.extend(grid(0.62, 0.0, 6, 10));
+        let far_start = points.len();
+        points.extend(grid(0.30, -0.30, 25, 20));
+        let clusters = euclidean_clusters(&points, 0.01);
+        assert_eq!(clusters.len(), 4, "test setup");
+        let box_ = [[0.15, -0.7, -0.05], [1.1, 0.7, 1.0]];
+        let params = SegmentParams {
+            min_cluster_points: 50,
+            ..SegmentParams::default()
+        };
+        let object = choose_object(&points, &clusters, box_, &params).unwrap();
+        let expected: Vec<usize> = (0..speck_start).collect();
+        assert_eq!(
+            object, expected,
+            "body and handle, not the speck or the far box"
+        );
+        assert!(object.contains(&handle_start) && !object.contains(&far_start));
+        // With the handle farther than the merge distance it stays out.
+        let apart = SegmentParams {
+            merge_distance_m: 0.01,
+            ..params
+        };
+        let object = choose_object(&points, &clusters, box_, &apart).unwrap();
+        assert_eq!(object, (0..handle_start).collect::<Vec<_>>());
     }
 
     #[test]

@@ -2,23 +2,20 @@
 //! [`crate::execute`].
 
 use super::arm::Arm;
-use super::path::{
-    palm_speed_limited, peak_palm_speed, straight_line, PathTolerance, StraightPath,
-};
+use super::motions::{lifted, validate_grasp, GraspMotions};
+use super::path::{straight_line, PathTolerance, StraightPath};
 use super::report::{ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
-use super::request::{ExecutionRequest, ValidRequest};
+use super::request::ExecutionRequest;
 use super::safety::{SafeArm, SafeArmError, SafetyLimits};
 use super::{ExecuteError, Phase};
 use crate::clock::Clock;
 use crate::config::CellConfig;
-use crate::geometry::{pose_error, Pose, PoseJson};
+use crate::geometry::PoseJson;
 use crate::hw::can::CanBus;
-use crate::hw::fri::{FriError, FriState, FriStatus, JOINTS};
+use crate::hw::fri::{FriError, FriState, FriStatus};
 use crate::hw::hand::{Hand, HandPositions, Puck};
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, Robot};
-use crate::trajectory::Trajectory;
-use nalgebra::Translation3;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -95,12 +92,6 @@ impl ExecutorConfig {
     }
 }
 
-/// Everything the validation worked out.
-struct Plan {
-    request: ValidRequest,
-    preshape: HandPose,
-}
-
 /// Runs grasps on an arm (behind the safety layer) and a hand.
 pub struct Executor<A, B> {
     arm: SafeArm<A>,
@@ -172,6 +163,22 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
     /// The settings.
     pub fn config(&self) -> &ExecutorConfig {
         &self.config
+    }
+
+    /// Whether the hand has been woken, identified and initialised.
+    pub fn hand_ready(&self) -> bool {
+        self.hand_ready
+    }
+
+    /// Brings the hand up (wake, identify, initialise) ahead of the first grasp, so
+    /// that the grasp does not wait for it; needs the arm in command mode (the
+    /// fingers move while initialising). A no-op once the hand is up.
+    pub fn prepare_hand(&mut self) -> Result<(), ExecuteError> {
+        if self.hand_ready {
+            return Ok(());
+        }
+        self.check_arm(Phase::HandBringup)?;
+        self.bring_up_hand()
     }
 
     /// Executes one grasp; the report says how it went (never panics on device
@@ -248,7 +255,12 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             ex.wait_arm_ready()
         })?;
         let plan = self.phase(Phase::Validate, report, began, observer, |ex, report| {
-            ex.validate(request, &status.commanded_rad, report)
+            let motions =
+                validate_grasp(ex.arm.safety(), &ex.config, request, &status.commanded_rad)?;
+            report.pregrasp_move = Some(motions.pregrasp_move.clone());
+            report.approach = Some(motions.approach.clone());
+            report.lift = Some(motions.lift.clone());
+            Ok(motions)
         })?;
         if !self.hand_ready {
             self.phase(Phase::HandBringup, report, began, observer, |ex, _| {
@@ -288,7 +300,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         })?;
         self.phase(Phase::Lift, report, began, observer, |ex, report| {
             let start = ex.commanded();
-            let target = ex.lifted(&ex.robot.arm().palm(&start));
+            let target = lifted(&ex.config, &ex.robot.arm().palm(&start));
             let path = straight_line(&ex.robot, &start, &target, None, &ex.config.path).map_err(
                 |source| ExecuteError::Path {
                     phase: Phase::Lift,
@@ -307,11 +319,6 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
     /// The joints the arm is commanded to now.
     fn commanded(&self) -> ArmJoints {
         self.arm.arm().status().commanded_rad
-    }
-
-    /// `palm` moved straight up by the lift height.
-    fn lifted(&self, palm: &Pose) -> Pose {
-        Translation3::new(0.0, 0.0, self.config.lift_m) * palm
     }
 
     fn wait_arm_ready(&mut self) -> Result<FriStatus, ExecuteError> {
@@ -335,139 +342,6 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         }
     }
 
-    /// Checks every planned motion before anything moves.
-    fn validate(
-        &mut self,
-        request: &ExecutionRequest,
-        current: &ArmJoints,
-        report: &mut ExecutionReport,
-    ) -> Result<Plan, ExecuteError> {
-        const PHASE: Phase = Phase::Validate;
-        let request = request.validate()?;
-        let preshape = HandPose {
-            spread_rad: request.spread_rad,
-            flex_rad: [0.0; 3],
-        };
-        let pregrasp_move = self.plan_motion(
-            PHASE,
-            "pregrasp move",
-            &[*current, request.pregrasp_joints_rad],
-            None,
-            &preshape,
-        )?;
-        for (which, joints, pose) in [
-            ("pregrasp", &request.pregrasp_joints_rad, &request.pregrasp),
-            ("grasp", &request.joints_rad, &request.palm),
-        ] {
-            let (pos_err_m, rot_err_rad) = pose_error(&self.robot.arm().palm(joints), pose);
-            if pos_err_m > self.config.plan_tolerance_m
-                || rot_err_rad > self.config.plan_tolerance_rad
-            {
-                return Err(ExecuteError::PlanMismatch {
-                    which,
-                    pos_err_m,
-                    rot_err_rad,
-                    max_pos_m: self.config.plan_tolerance_m,
-                    max_rot_rad: self.config.plan_tolerance_rad,
-                });
-            }
-        }
-        let path_error = |motion| {
-            move |source| ExecuteError::Path {
-                phase: PHASE,
-                motion,
-                source,
-            }
-        };
-        let approach = straight_line(
-            &self.robot,
-            &request.pregrasp_joints_rad,
-            &request.palm,
-            Some(&request.joints_rad),
-            &self.config.path,
-        )
-        .map_err(path_error("approach"))?;
-        let approach_report = self.plan_motion(
-            PHASE,
-            "approach",
-            &approach.waypoints,
-            Some(&approach),
-            &preshape,
-        )?;
-        let lift_target = self.lifted(&self.robot.arm().palm(&approach.end()));
-        let lift = straight_line(
-            &self.robot,
-            &approach.end(),
-            &lift_target,
-            None,
-            &self.config.path,
-        )
-        .map_err(path_error("lift"))?;
-        // With the hand open: checked again with the measured hand before the lift.
-        let lift_report =
-            self.plan_motion(PHASE, "lift", &lift.waypoints, Some(&lift), &preshape)?;
-        report.pregrasp_move = Some(pregrasp_move);
-        report.approach = Some(approach_report);
-        report.lift = Some(lift_report);
-        Ok(Plan { request, preshape })
-    }
-
-    /// Builds the trajectory of a motion; straight palm paths are speed-limited.
-    fn trajectory(
-        &self,
-        phase: Phase,
-        waypoints: &[ArmJoints],
-        path: Option<&StraightPath>,
-    ) -> Result<(Trajectory<JOINTS>, MotionReport), ExecuteError> {
-        let to_error = |source| ExecuteError::Trajectory { phase, source };
-        let limits = self.arm.limits().joint_limits().map_err(to_error)?;
-        let period = self.arm.limits().check_period_s;
-        let (trajectory, peak) = match path {
-            Some(_) => palm_speed_limited(
-                &self.robot,
-                waypoints,
-                &limits,
-                self.config.palm_speed_m_s,
-                period,
-            )
-            .map_err(to_error)?,
-            None => {
-                let t = Trajectory::through(waypoints, &limits).map_err(to_error)?;
-                let peak = peak_palm_speed(&self.robot, &t, period);
-                (t, peak)
-            }
-        };
-        let report = MotionReport {
-            method: path.map(|p| p.method),
-            waypoints: waypoints.len(),
-            duration_s: trajectory.duration_s(),
-            peak_palm_speed_m_s: peak,
-            max_position_deviation_m: path.map(|p| p.max_position_deviation_m),
-            max_rotation_deviation_rad: path.map(|p| p.max_rotation_deviation_rad),
-        };
-        Ok((trajectory, report))
-    }
-
-    /// Builds and checks a motion with the hand shaped as `hand`.
-    fn plan_motion(
-        &self,
-        phase: Phase,
-        motion: &'static str,
-        waypoints: &[ArmJoints],
-        path: Option<&StraightPath>,
-        hand: &HandPose,
-    ) -> Result<MotionReport, ExecuteError> {
-        let (trajectory, report) = self.trajectory(phase, waypoints, path)?;
-        self.arm
-            .check_with(&trajectory, hand)
-            .map_err(|source| ExecuteError::Unsafe {
-                phase,
-                motion,
-                source: Box::new(source),
-            })?;
-        Ok(report)
-    }
-
     /// Moves the arm through `waypoints` (the first is where it is commanded),
     /// through the safety layer, under the watchdog.
     fn move_along(
@@ -477,7 +351,8 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         waypoints: &[ArmJoints],
         path: Option<&StraightPath>,
     ) -> Result<MotionReport, ExecuteError> {
-        let (trajectory, report) = self.trajectory(phase, waypoints, path)?;
+        let (trajectory, report) =
+            super::motions::motion(self.arm.safety(), &self.config, phase, waypoints, path)?;
         let deadline_s = trajectory.duration_s() * self.config.motion_timeout_factor
             + self.config.motion_timeout_margin_s;
         let start = self.clock.now();
@@ -562,7 +437,11 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         Ok(())
     }
 
-    fn preshape(&mut self, plan: &Plan, report: &mut ExecutionReport) -> Result<(), ExecuteError> {
+    fn preshape(
+        &mut self,
+        plan: &GraspMotions,
+        report: &mut ExecutionReport,
+    ) -> Result<(), ExecuteError> {
         const PHASE: Phase = Phase::Preshape;
         let timeout = self.call_timeout();
         let target = HandPositions {
@@ -725,11 +604,13 @@ mod tests {
     use crate::execute::SafetyError;
     use crate::geometry::pose_from_params;
     use crate::hw::can::{CanBus, VirtualBus};
+    use crate::hw::fri::JOINTS;
     use crate::hw::fri::{FriStatus, Quality};
     use crate::hw::hand::{HandError, HandTiming};
     use crate::robot::shipped_robot;
     use crate::sim::fri::{DropReason, SimConfig};
     use crate::sim::puck::{EmulatorThread, HandEmulator, HandEmulatorConfig};
+    use crate::trajectory::Trajectory;
     use std::f64::consts::PI;
 
     /// Where the simulated arm starts: palm about 0.48 m over the table, facing down.

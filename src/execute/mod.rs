@@ -54,6 +54,7 @@
 
 pub mod arm;
 pub mod executor;
+pub mod motions;
 pub mod path;
 pub mod report;
 pub mod request;
@@ -64,10 +65,11 @@ mod lockstep;
 
 pub use arm::Arm;
 pub use executor::{Executor, ExecutorConfig};
+pub use motions::{validate_grasp, GraspMotions};
 pub use path::{PathError, PathMethod, PathTolerance, StraightPath};
 pub use report::{ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
 pub use request::{ExecutionRequest, RequestError, ValidRequest};
-pub use safety::{SafeArm, SafeArmError, SafetyError, SafetyLimits};
+pub use safety::{SafeArm, SafeArmError, SafetyCheck, SafetyError, SafetyLimits};
 
 use crate::hw::fri::{FriError, FriState, Quality};
 use crate::hw::hand::{HandError, Puck};

@@ -11,7 +11,10 @@
 //!
 //! The checks run in order of cost, and within each the worst sample is reported:
 //! joint positions, velocities, accelerations; then palm height and workspace; then
-//! collision of every link with the table and with each other.
+//! collision of every link with the table and with each other. One exception: a
+//! trajectory that starts with only the hand touching the table (fingers closed
+//! onto it around a low object) may lift the hand off — the hand may touch the
+//! table while the palm is no lower than at the start; the arm never may.
 
 use super::arm::Arm;
 use crate::config::CellConfig;
@@ -166,26 +169,18 @@ impl SafetyLimits {
     }
 }
 
-/// The arm behind the safety layer: every trajectory is checked before it is sent.
-///
-/// Collision checks use the hand's current shape, which the owner keeps up to date
-/// with [`SafeArm::set_hand`].
-pub struct SafeArm<A> {
-    arm: A,
+/// The safety checks without an arm: what [`SafeArm`] enforces, for validating
+/// motions ahead of time (the planner checks the grasp's motions with it too).
+#[derive(Debug, Clone)]
+pub struct SafetyCheck {
     robot: Arc<Robot>,
     limits: SafetyLimits,
-    hand: HandPose,
 }
 
-impl<A: Arm> SafeArm<A> {
-    /// Wraps `arm`; the hand is assumed open until told otherwise.
-    pub fn new(arm: A, robot: Arc<Robot>, limits: SafetyLimits) -> SafeArm<A> {
-        SafeArm {
-            arm,
-            robot,
-            limits,
-            hand: HandPose::OPEN,
-        }
+impl SafetyCheck {
+    /// Checks of `robot`'s motions against `limits`.
+    pub fn new(robot: Arc<Robot>, limits: SafetyLimits) -> SafetyCheck {
+        SafetyCheck { robot, limits }
     }
 
     /// The limits enforced.
@@ -193,24 +188,9 @@ impl<A: Arm> SafeArm<A> {
         &self.limits
     }
 
-    /// The hand shape collision checks use.
-    pub fn hand(&self) -> HandPose {
-        self.hand
-    }
-
-    /// Sets the hand shape collision checks use.
-    pub fn set_hand(&mut self, hand: HandPose) {
-        self.hand = hand;
-    }
-
-    /// The wrapped arm, for reading only: status and stop never move it unsafely.
-    pub fn arm(&self) -> &A {
-        &self.arm
-    }
-
-    /// Checks `trajectory` with the current hand shape.
-    pub fn check(&self, trajectory: &Trajectory<JOINTS>) -> Result<(), SafetyError> {
-        self.check_with(trajectory, &self.hand)
+    /// The robot whose kinematics and collision model are used.
+    pub fn robot(&self) -> &Robot {
+        &self.robot
     }
 
     /// Checks `trajectory` with the hand shaped as `hand`.
@@ -222,8 +202,24 @@ impl<A: Arm> SafeArm<A> {
         let samples = self.samples(trajectory);
         self.check_joints(&samples)?;
         self.check_palm(&samples)?;
+        // A hand resting on the table (fingers closed onto it) may lift off: while the
+        // palm is no lower than at the start, only its touching the table is allowed.
+        let start = &samples[0].1.position;
+        let resting = self.robot.collision_at(start, hand).is_some()
+            && self
+                .robot
+                .collision_except_hand_on_table(start, hand)
+                .is_none();
+        let start_z = self.robot.arm().palm(start).translation.z;
         for (t_s, s) in &samples {
-            if let Some(collision) = self.robot.collision_at(&s.position, hand) {
+            let lifting_off =
+                resting && self.robot.arm().palm(&s.position).translation.z >= start_z - 1e-9;
+            let collision = if lifting_off {
+                self.robot.collision_except_hand_on_table(&s.position, hand)
+            } else {
+                self.robot.collision_at(&s.position, hand)
+            };
+            if let Some(collision) = collision {
                 return Err(SafetyError::Collision {
                     collision,
                     joints_rad: s.position,
@@ -232,12 +228,6 @@ impl<A: Arm> SafeArm<A> {
             }
         }
         Ok(())
-    }
-
-    /// Checks `trajectory`, then starts it on the arm.
-    pub fn start_trajectory(&self, trajectory: Trajectory<JOINTS>) -> Result<u64, SafeArmError> {
-        self.check(&trajectory)?;
-        Ok(self.arm.start_trajectory(trajectory)?)
     }
 
     /// Samples every `check_period_s` from 0, and the end.
@@ -355,6 +345,72 @@ impl<A: Arm> SafeArm<A> {
             Some((_, error)) => Err(error),
             None => Ok(()),
         }
+    }
+}
+
+/// The arm behind the safety layer: every trajectory is checked before it is sent.
+///
+/// Collision checks use the hand's current shape, which the owner keeps up to date
+/// with [`SafeArm::set_hand`].
+pub struct SafeArm<A> {
+    arm: A,
+    check: SafetyCheck,
+    hand: HandPose,
+}
+
+impl<A: Arm> SafeArm<A> {
+    /// Wraps `arm`; the hand is assumed open until told otherwise.
+    pub fn new(arm: A, robot: Arc<Robot>, limits: SafetyLimits) -> SafeArm<A> {
+        SafeArm {
+            arm,
+            check: SafetyCheck::new(robot, limits),
+            hand: HandPose::OPEN,
+        }
+    }
+
+    /// The limits enforced.
+    pub fn limits(&self) -> &SafetyLimits {
+        self.check.limits()
+    }
+
+    /// The checks applied to every trajectory.
+    pub fn safety(&self) -> &SafetyCheck {
+        &self.check
+    }
+
+    /// The hand shape collision checks use.
+    pub fn hand(&self) -> HandPose {
+        self.hand
+    }
+
+    /// Sets the hand shape collision checks use.
+    pub fn set_hand(&mut self, hand: HandPose) {
+        self.hand = hand;
+    }
+
+    /// The wrapped arm, for reading only: status and stop never move it unsafely.
+    pub fn arm(&self) -> &A {
+        &self.arm
+    }
+
+    /// Checks `trajectory` with the current hand shape.
+    pub fn check(&self, trajectory: &Trajectory<JOINTS>) -> Result<(), SafetyError> {
+        self.check.check_with(trajectory, &self.hand)
+    }
+
+    /// Checks `trajectory` with the hand shaped as `hand`.
+    pub fn check_with(
+        &self,
+        trajectory: &Trajectory<JOINTS>,
+        hand: &HandPose,
+    ) -> Result<(), SafetyError> {
+        self.check.check_with(trajectory, hand)
+    }
+
+    /// Checks `trajectory`, then starts it on the arm.
+    pub fn start_trajectory(&self, trajectory: Trajectory<JOINTS>) -> Result<u64, SafeArmError> {
+        self.check(&trajectory)?;
+        Ok(self.arm.start_trajectory(trajectory)?)
     }
 }
 
@@ -522,5 +578,48 @@ mod tests {
             }
             other => panic!("{other}"),
         }
+    }
+
+    #[test]
+    fn a_hand_resting_on_the_table_may_lift_off_but_not_press_down() {
+        let arm = safe_arm();
+        let robot = shipped_robot();
+        let limits = arm.limits().joint_limits().unwrap();
+        let open = HandPose {
+            spread_rad: 0.0,
+            flex_rad: [0.0; 3],
+        };
+        let solve = |z: f64| {
+            let palm =
+                crate::geometry::pose_from_params(&[0.6, 0.0, z, std::f64::consts::PI, 0.0, 0.0]);
+            robot.ik.solve(&palm, &[OVER_TABLE]).unwrap().joints
+        };
+        // Palm down, lowered until the open fingers touch the table (nothing else).
+        let (mut z, mut resting) = (0.30, None);
+        while z > 0.06 {
+            let q = solve(z);
+            if robot.collision_at(&q, &open).is_some() {
+                assert_eq!(robot.collision_except_hand_on_table(&q, &open), None);
+                resting = Some((z, q));
+                break;
+            }
+            z -= 0.005;
+        }
+        let (z, on_table) = resting.expect("test setup: the fingers reach the table");
+        let above = solve(z + 0.08);
+        let lift = Trajectory::point_to_point(on_table, above, &limits).unwrap();
+        arm.check_with(&lift, &open).unwrap();
+        // Pressing further down is refused, and so is moving down onto the table.
+        let lower = solve(z - 0.01);
+        let press = Trajectory::point_to_point(on_table, lower, &limits).unwrap();
+        assert!(matches!(
+            arm.check_with(&press, &open),
+            Err(SafetyError::Collision { .. })
+        ));
+        let descend = Trajectory::point_to_point(above, on_table, &limits).unwrap();
+        assert!(matches!(
+            arm.check_with(&descend, &open),
+            Err(SafetyError::Collision { .. })
+        ));
     }
 }

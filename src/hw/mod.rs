@@ -4,7 +4,9 @@
 //! - [`can`]: the CAN bus trait with SocketCAN, in-process and cross-process backends.
 //! - [`hand`]: the Barrett BH8-282 driver over any CAN bus.
 //! - [`fri`]: the KUKA LBR4+ over FRI 1.x (UDP).
+//! - [`realtime`]: real-time priority for the threads that answer a device's cycle.
 
 pub mod can;
 pub mod fri;
 pub mod hand;
+pub mod realtime;

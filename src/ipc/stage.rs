@@ -679,6 +679,18 @@ impl CloudSample {
     pub fn validate(&self) -> Result<(), IpcError> {
         self.header().validate(self.points().len())
     }
+
+    /// A copy as a [`crate::cloud::PointCloud`] in the header's frame (organisation
+    /// kept; missing returns stay NaN).
+    pub fn to_cloud(&self) -> crate::cloud::PointCloud {
+        let header = self.header();
+        crate::cloud::PointCloud {
+            points: self.points().iter().map(|&p| p.into()).collect(),
+            normals: None,
+            width: header.width,
+            height: header.height,
+        }
+    }
 }
 
 #[cfg(test)]

@@ -196,10 +196,16 @@ impl CollisionModel {
 
     /// The first collision of the links at `poses` (all links, from `link_poses`).
     pub fn check(&self, poses: &[Pose]) -> Option<Collision> {
+        self.check_except_table(poses, &[])
+    }
+
+    /// [`CollisionModel::check`] with the links in `exempt` allowed to touch the table
+    /// (they are still checked against the other links).
+    pub fn check_except_table(&self, poses: &[Pose], exempt: &[usize]) -> Option<Collision> {
         if let Some(&link) = self
             .table_links
             .iter()
-            .find(|&&l| self.link_hits_table(l, &poses[l]))
+            .find(|&&l| !exempt.contains(&l) && self.link_hits_table(l, &poses[l]))
         {
             return Some(Collision::Table {
                 link: self.names[link].clone(),

@@ -308,6 +308,17 @@ impl Robot {
         self.collision.check(&self.link_poses(arm, hand))
     }
 
+    /// The first collision at this configuration other than the hand touching the
+    /// table (fingers closed onto it, a hand lifting off).
+    pub fn collision_except_hand_on_table(
+        &self,
+        arm: &ArmJoints,
+        hand: &HandPose,
+    ) -> Option<Collision> {
+        self.collision
+            .check_except_table(&self.link_poses(arm, hand), &self.hand_links)
+    }
+
     /// Whether the palm pose is reachable with the hand in `hand`; `seeds` are tried
     /// first (e.g. the current configuration, the previous solution).
     pub fn reach(
@@ -441,6 +452,24 @@ mod tests {
         assert!(matches!(
             robot.collision_at(&q, &HandPose::OPEN),
             Some(Collision::Table { .. })
+        ));
+    }
+
+    #[test]
+    fn the_wrist_bends_to_100_deg_without_self_collision_and_folds_into_the_forearm_at_the_limit() {
+        let robot = shipped_robot();
+        // Arm upright, A5 (index 5) bent both ways: the flange and hand clear the forearm.
+        for a5 in [-100f64, -60.0, 60.0, 100.0] {
+            let mut q = [0.0; 7];
+            q[5] = a5.to_radians();
+            assert_eq!(robot.collision_at(&q, &HandPose::OPEN), None, "A5 {a5} deg");
+        }
+        // A5 at its 120 deg limit folds the palm back onto the forearm.
+        let mut q = [0.0; 7];
+        q[5] = 2.09;
+        assert!(matches!(
+            robot.collision_at(&q, &HandPose::OPEN),
+            Some(Collision::SelfCollision { .. })
         ));
     }
 

@@ -172,6 +172,12 @@ pub struct SimConfig {
     pub start_after_perfect_cycles: u32,
     /// Whether the KRL program calls `friStart` at all (else the robot stays in MON).
     pub auto_start: bool,
+    /// Whether the KRL program calls `friStart` again after the link dropped the
+    /// robot to monitor mode (a loop around `friStart`, as cell programs have): it
+    /// is back in command mode once quality has been PERFECT for
+    /// `start_after_perfect_cycles` cycles. `friStop` and limit violations still end
+    /// command mode for good.
+    pub restart_after_drop: bool,
     /// Quality levels.
     pub quality: QualityThresholds,
     /// `sendSeqCount` of the first measurement.
@@ -191,6 +197,7 @@ impl Default for SimConfig {
             tracking_time_constant_s: 0.0,
             start_after_perfect_cycles: 10,
             auto_start: true,
+            restart_after_drop: false,
             quality: QualityThresholds::default(),
             initial_seq_count: 0,
             record_latencies: false,
@@ -797,6 +804,9 @@ impl FriSimulator {
         self.last_cmd_rad = self.msr_rad;
         self.last_applied = None;
         self.perfect_cycles = 0;
+        if self.config.restart_after_drop && matches!(reason, DropReason::LinkQuality { .. }) {
+            self.start_requested = true;
+        }
         self.drop_reason = Some(reason);
         self.counters.drops_to_monitor += 1;
         let at_s = self.at_s(now);
@@ -1016,6 +1026,7 @@ pub fn run_udp(
         .map_err(|e| io("set read timeout on", e))?;
     std::thread::scope(|scope| {
         let receiver = scope.spawn(|| -> Result<(), SimError> {
+            crate::hw::realtime::request_device_cycle_priority("FRI sim receiver");
             let mut buf = [0u8; 2048];
             while !stop.load(Ordering::Relaxed) {
                 match socket.recv_from(&mut buf) {
@@ -1035,8 +1046,9 @@ pub fn run_udp(
             }
             Ok(())
         });
-        // The sending loop runs here; it ends at `stop`, at `until`, or when the
-        // receiver fails.
+        // The sending loop runs here (the robot's real-time cycle); it ends at `stop`,
+        // at `until`, or when the receiver fails.
+        crate::hw::realtime::request_device_cycle_priority("FRI sim sender");
         while !stop.load(Ordering::Relaxed) && !receiver.is_finished() {
             let now = clock.now();
             if until.is_some_and(|end| now >= end) {
@@ -1409,6 +1421,34 @@ mod tests {
         sim.request_start();
         run(&mut sim, &mut t, 20, |_, _| Some(None));
         assert_eq!(sim.state(), FriState::Command);
+    }
+
+    #[test]
+    fn a_krl_loop_restarts_command_mode_after_a_link_drop_only() {
+        let mut sim = FriSimulator::new(SimConfig {
+            restart_after_drop: true,
+            ..Default::default()
+        })
+        .unwrap();
+        let mut t = Duration::from_secs(3);
+        run(&mut sim, &mut t, 150, |_, _| Some(None));
+        assert_eq!(sim.state(), FriState::Command);
+        // Five answers missed: the link drops the robot to monitor mode ...
+        run(&mut sim, &mut t, 6, |_, _| None);
+        assert_eq!(sim.state(), FriState::Monitor);
+        let stopped = sim.joints_rad();
+        // ... and the loop asks again: command mode once the misses left the window,
+        // at the position where the arm stopped.
+        run(&mut sim, &mut t, 50, |_, _| Some(None));
+        assert_eq!(sim.state(), FriState::Monitor, "quality is not PERFECT yet");
+        run(&mut sim, &mut t, 150, |_, _| Some(None));
+        assert_eq!(sim.state(), FriState::Command);
+        assert_eq!(sim.joints_rad(), stopped);
+        assert_eq!(sim.counters().drops_to_monitor, 1);
+        // friStop ends command mode for good.
+        sim.request_stop(t);
+        run(&mut sim, &mut t, 300, |_, _| Some(None));
+        assert_eq!(sim.state(), FriState::Monitor);
     }
 
     #[test]

@@ -1015,6 +1015,7 @@ impl Drop for FriDriver {
 
 /// The driver thread: answer each measurement at once; check for late ones.
 fn serve(shared: &Shared, socket: &UdpSocket, clock: &dyn Clock) {
+    crate::hw::realtime::request_device_cycle_priority("FRI driver");
     let mut buf = [0u8; 2048];
     while !shared.stop.load(Ordering::Relaxed) {
         let received = socket.recv_from(&mut buf);
