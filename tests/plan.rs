@@ -299,3 +299,265 @@ fn plans_from_the_shipped_category_database() {
     assert!(e.contains("pour") && e.contains("handle"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A category database of `models` of the shipped mug database (and their grasps),
+/// written under `dir`: a small database for registration in tests.
+fn mug_subset_db(dir: &Path, models: &[&str]) -> PathBuf {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug");
+    let out = dir.join("mug");
+    std::fs::create_dir_all(out.join("models")).unwrap();
+    let mut file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(src.join("category.json")).unwrap()).unwrap();
+    let keep = |v: &serde_json::Value, key: &str| models.contains(&v[key].as_str().unwrap());
+    let kept: Vec<serde_json::Value> = file["models"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|m| keep(m, "name"))
+        .cloned()
+        .collect();
+    for m in &kept {
+        let mesh = m["mesh"].as_str().unwrap();
+        std::fs::copy(src.join(mesh), out.join(mesh)).unwrap();
+    }
+    file["models"] = serde_json::Value::Array(kept);
+    let grasps: Vec<serde_json::Value> = file["grasps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|g| keep(g, "model"))
+        .cloned()
+        .collect();
+    file["grasps"] = serde_json::Value::Array(grasps);
+    std::fs::write(out.join("category.json"), file.to_string()).unwrap();
+    out
+}
+
+/// Runs the `cell` binary; returns success, stdout, stderr.
+fn cell_bin(args: &[&str]) -> (bool, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cell"))
+        .arg("--config")
+        .arg(config())
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn pose_of(v: &serde_json::Value) -> graspcell::geometry::Pose {
+    serde_json::from_value::<graspcell::geometry::PoseJson>(v.clone())
+        .unwrap()
+        .to_pose("test")
+        .unwrap()
+}
+
+/// `cell plan --cloud`: a sim camera view of mug_003 registers every model of a
+/// two-mug database; mug_003 fits best, so best single is its own top grasp at the
+/// true pose. `cell register --json` output given as `--fits` plans the same grasp.
+#[test]
+fn plans_from_a_cloud_and_from_register_output() {
+    use graspcell::cloud::io::{write_cloud, CloudEncoding};
+    let dir = temp_dir("cloud");
+    let db_dir = mug_subset_db(&dir, &["mug_000", "mug_003"]);
+    let db = graspcell::category::CategoryDb::load(&db_dir).unwrap();
+    let cell = graspcell::config::CellConfig::load(Path::new(&config())).unwrap();
+    // Handle towards the camera's side, in comfortable reach.
+    let truth = pose_from_params(&[0.6, 0.03, cell.table.height_m, 0.0, 0.0, 0.87]);
+    let index = db.model_index("mug_003").unwrap();
+    let view = graspcell::eval::view::partial_view(
+        "mug_003",
+        &db.meshes[index],
+        &truth,
+        &graspcell::sim::camera::DepthCamera::from_config(&cell.camera, cell.base_from_camera()),
+        graspcell::sim::scene::TableBox::from(&cell.table),
+        5,
+    )
+    .unwrap();
+    let cloud = dir.join("object.ply");
+    write_cloud(&cloud, &view, CloudEncoding::Binary).unwrap();
+    let (db_s, cloud_s) = (db_dir.to_str().unwrap(), cloud.to_str().unwrap());
+
+    let (ok, stdout, stderr) = cell_bin(&[
+        "plan", "--db", db_s, "--cloud", cloud_s, "--task", "top", "--seed", "2", "--json",
+    ]);
+    assert!(ok, "{stderr}");
+    let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(report["seed"], 2);
+    let regs = report["registrations"].as_array().unwrap();
+    let names: Vec<&str> = regs.iter().map(|r| r["model"].as_str().unwrap()).collect();
+    assert_eq!(names, ["mug_000", "mug_003"]);
+    let own = &regs[1];
+    assert_eq!(own["status"], "ok", "{own}");
+    if regs[0]["status"] == "ok" {
+        assert!(
+            own["eps_m2"].as_f64().unwrap() < regs[0]["eps_m2"].as_f64().unwrap(),
+            "{regs:?}"
+        );
+    }
+    // Best single: mug_003's top grasp, at the registered pose (close to the truth).
+    let best = &report["best_single"];
+    assert_eq!(best["model_name"], "mug_003");
+    let theta = db
+        .grasps_for("top")
+        .find(|g| g.model == "mug_003")
+        .unwrap()
+        .params();
+    let expected = truth * pose_from_params(&theta);
+    let (dp, dr) = graspcell::geometry::pose_error(&pose_of(&best["pose"]), &expected);
+    assert!(dp < 0.01 && dr < 10f64.to_radians(), "{dp} m, {dr} rad");
+    // The plan: reachable, above the table bound, near the mug.
+    let planned = pose_of(&report["plan"]["pose"]);
+    assert_eq!(report["plan"]["reachable"], true, "{}", report["plan"]);
+    let z_min = cell.table.height_m + cell.table.palm_clearance_m;
+    assert!(planned.translation.z >= z_min - 1e-9);
+    let dxy = (planned.translation.vector - truth.translation.vector)
+        .xy()
+        .norm();
+    assert!(dxy < 0.05, "planned palm {dxy} m off the mug's axis");
+
+    // The same registration through `cell register --json` and `--fits`.
+    let (ok, reg_json, stderr) = cell_bin(&[
+        "register", "--target", cloud_s, "--models", db_s, "--seed", "2", "--json",
+    ]);
+    assert!(ok, "{stderr}");
+    let fits = dir.join("registered.json");
+    std::fs::write(&fits, &reg_json).unwrap();
+    let (ok, stdout, stderr) = cell_bin(&[
+        "plan",
+        "--db",
+        db_s,
+        "--fits",
+        fits.to_str().unwrap(),
+        "--task",
+        "top",
+        "--json",
+    ]);
+    assert!(ok, "{stderr}");
+    let from_fits: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert!(from_fits.get("registrations").is_none());
+    let (dp, dr) = graspcell::geometry::pose_error(&pose_of(&from_fits["plan"]["pose"]), &planned);
+    assert!(dp < 1e-3 && dr < 1e-3, "{dp} m, {dr} rad");
+    assert_eq!(from_fits["best_single"]["model_name"], "mug_003");
+
+    // NaN in register output: named by file, model and field.
+    let mut lines: serde_json::Value = serde_json::from_str(&reg_json).unwrap();
+    lines[1]["eps"] = serde_json::Value::Null;
+    let nan = dir.join("nan.json");
+    std::fs::write(&nan, lines.to_string()).unwrap();
+    let (ok, _, stderr) = cell_bin(&[
+        "plan",
+        "--db",
+        db_s,
+        "--fits",
+        nan.to_str().unwrap(),
+        "--task",
+        "top",
+    ]);
+    assert!(!ok);
+    assert!(
+        stderr.contains("nan.json") && stderr.contains("(mug_003) eps") && stderr.contains("NaN"),
+        "{stderr}"
+    );
+    // Every model failed: nothing to plan over, and the reasons are given.
+    for l in lines.as_array_mut().unwrap() {
+        l["status"] = "failed".into();
+        l["reason"] = "too few inliers".into();
+    }
+    let failed = dir.join("failed.json");
+    std::fs::write(&failed, lines.to_string()).unwrap();
+    let (ok, _, stderr) = cell_bin(&[
+        "plan",
+        "--db",
+        db_s,
+        "--fits",
+        failed.to_str().unwrap(),
+        "--task",
+        "top",
+    ]);
+    assert!(!ok);
+    assert!(
+        stderr.contains("failed.json")
+            && stderr.contains("no model registered")
+            && stderr.contains("mug_000 (too few inliers)"),
+        "{stderr}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_cloud_requests_are_clear_errors() {
+    let dir = temp_dir("cloud-bad");
+    let config = config();
+    let plan_err = |args: &[&str]| {
+        let mut argv = vec!["cell", "--config", &config, "plan"];
+        argv.extend_from_slice(args);
+        format!("{:#}", run(Cli::try_parse_from(argv).unwrap()).unwrap_err())
+    };
+    let db_dir = mug_subset_db(&dir, &["mug_000", "mug_001"]);
+    let db_s = db_dir.to_str().unwrap();
+    // --cloud needs the database whose models it registers.
+    let e = plan_err(&["--cloud", "o.ply", "--grasps", "g.json", "--task", "top"]);
+    assert!(e.contains("--cloud o.ply") && e.contains("--db"), "{e}");
+    // A task without grasps fails before any registration (the cloud is not read).
+    let missing = dir.join("missing.ply");
+    let e = plan_err(&[
+        "--db",
+        db_s,
+        "--cloud",
+        missing.to_str().unwrap(),
+        "--task",
+        "pour",
+    ]);
+    assert!(
+        e.contains("\"pour\"") && e.contains("handle, side, top"),
+        "{e}"
+    );
+    // The cloud itself: missing, or without valid points.
+    let e = plan_err(&[
+        "--db",
+        db_s,
+        "--cloud",
+        missing.to_str().unwrap(),
+        "--task",
+        "top",
+    ]);
+    assert!(e.contains("missing.ply"), "{e}");
+    let nan = dir.join("nan.ply");
+    graspcell::cloud::io::write_cloud(
+        &nan,
+        &graspcell::cloud::PointCloud::from_points(vec![
+            nalgebra::Point3::new(f32::NAN, 0.0, 0.0);
+            10
+        ]),
+        graspcell::cloud::io::CloudEncoding::Ascii,
+    )
+    .unwrap();
+    let e = plan_err(&[
+        "--db",
+        db_s,
+        "--cloud",
+        nan.to_str().unwrap(),
+        "--task",
+        "top",
+    ]);
+    assert!(
+        e.contains("nan.ply") && e.contains("no valid points"),
+        "{e}"
+    );
+    // An empty database.
+    let empty = mug_subset_db(&dir.join("empty"), &[]);
+    let e = plan_err(&[
+        "--db",
+        empty.to_str().unwrap(),
+        "--cloud",
+        nan.to_str().unwrap(),
+        "--task",
+        "top",
+    ]);
+    assert!(e.contains("has no models"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -7,6 +7,7 @@ mod can;
 mod category;
 mod cell;
 mod cli_output;
+mod eval;
 mod execute;
 mod fri;
 mod grasp;

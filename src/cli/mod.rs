@@ -8,6 +8,7 @@ mod calibrate;
 mod camera;
 mod can;
 mod cell;
+mod eval;
 mod execute;
 mod fri;
 pub mod ipc;
@@ -90,6 +91,9 @@ pub enum Command {
     /// Segment the object out of a camera snapshot: table plane removed, the cluster
     /// nearest the workspace centre, written in the robot base frame.
     Segment(perceive::SegmentArgs),
+    /// The paper's simulation experiments: leave-one-out (Figs. 5, 6) and cross-category (Table 1).
+    #[command(subcommand)]
+    Eval(eval::EvalCommand),
     /// Register every model onto a segmented object: FPFH + RANSAC + ICP; per model
     /// the transform, fitting error eps and sigma, inlier fraction, RMSE, time.
     Register(perceive::RegisterArgs),
@@ -139,6 +143,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Campaign(args) => cell::campaign(&cli.config, args),
         Command::Segment(args) => perceive::segment(&cli.config, args),
         Command::Register(args) => perceive::register(&cli.config, args),
+        Command::Eval(which) => eval::run(&cli.config, which),
     }
 }
 

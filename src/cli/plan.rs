@@ -3,12 +3,15 @@
 use super::bench::{median, percentile};
 use super::emit;
 use crate::category::CategoryDb;
+use crate::cloud::io::read_cloud;
 use crate::config::CellConfig;
+use crate::geometry::parse_numbers;
 use crate::geometry::{params_from_pose, Pose};
 use crate::plan::category::example_grasps;
-use crate::plan::input::{read_fits, read_grasps};
+use crate::plan::input::{read_fits_input, read_grasps, FitsInput, Unregistered};
 use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
 use crate::plan::{plan, FitWeight, Kernel, PlanOptions, PlanOutcome, PlannedGrasp, Reachability};
+use crate::register::{register_all, ModelSet, RegisterParams, RegistrationStatus};
 use crate::robot::Robot;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
@@ -103,16 +106,32 @@ impl KernelArgs {
 }
 
 /// Options of `cell plan`.
+///
+/// The target is given either as model fits (`--fits`, e.g. `cell register --json`
+/// output) or as the object's segmented cloud (`--cloud`), which is registered
+/// against every model of `--db` first.
 #[derive(Debug, Args)]
-#[command(group(clap::ArgGroup::new("target").required(true).args(["fits"])))]
+#[command(group(clap::ArgGroup::new("target").required(true).args(["fits", "cloud"])))]
 #[command(group(clap::ArgGroup::new("examples").required(true).args(["db", "grasps"])))]
 pub struct PlanArgs {
-    /// Model fits (JSON: {"fits": [{"name", "base_from_model", "eps_m2", "sigma_m2"}]};
-    /// `cell register --json` writes the same fields per model).
+    /// Model fits: the array `cell register --json` prints (failed models are left
+    /// out), or {"fits": [{"name", "base_from_model", "eps_m2", "sigma_m2"}]}.
     #[arg(long)]
     pub fits: Option<PathBuf>,
+    /// The object's segmented cloud (PLY/PCD, robot base frame, e.g. from `cell
+    /// segment`): every model of --db is registered to it (FPFH + RANSAC + ICP) and
+    /// the fits of those that register are planned over.
+    #[arg(long)]
+    pub cloud: Option<PathBuf>,
+    /// Seed of the registration's RANSAC (--cloud).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Sensor position `x,y,z` (base frame) for the cloud's normals (--cloud);
+    /// default: the configured camera's position.
+    #[arg(long)]
+    pub viewpoint: Option<String>,
     /// Category database directory (e.g. db/mug): the example grasps of the task for
-    /// every model that has a fit.
+    /// every model that has a fit (and, with --cloud, the models to register).
     #[arg(long)]
     pub db: Option<PathBuf>,
     /// Example grasps (JSON: {"grasps": [{"model", "task", "model_from_palm",
@@ -145,14 +164,118 @@ pub struct PlanArgs {
     pub json: bool,
 }
 
+/// One model's registration, as `cell plan --cloud` reports it.
+#[derive(Serialize)]
+struct RegistrationSummary {
+    model: String,
+    status: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reason: Option<String>,
+    /// Fitting error (m^2); `null` when failed.
+    eps_m2: Option<f64>,
+    /// Standard deviation of the squared distances (m^2); `null` when failed.
+    sigma_m2: Option<f64>,
+}
+
 #[derive(Serialize)]
 struct PlanReport<'a> {
+    /// The fits file, or the cloud that was registered.
     fits: &'a Path,
     /// The grasps file or the category database the example grasps came from.
     grasps: &'a Path,
+    /// Seed of the registration (--cloud only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    seed: Option<u64>,
+    /// Every model's registration (--cloud only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    registrations: Option<Vec<RegistrationSummary>>,
+    /// Models left out because their registration failed.
+    unregistered: Vec<Unregistered>,
     options: PlanOptions,
     #[serde(flatten)]
     outcome: PlanOutcome,
+}
+
+/// Loads a category database for planning, refusing one without models.
+fn load_db(dir: &Path) -> anyhow::Result<CategoryDb> {
+    let db = CategoryDb::load(dir)?;
+    anyhow::ensure!(
+        !db.file.models.is_empty(),
+        "{}: the category database has no models",
+        dir.display()
+    );
+    Ok(db)
+}
+
+/// Registers every model of `db` to the cloud at `path`: the fits of the models that
+/// registered and a summary of all.
+fn register_cloud(
+    cell: &CellConfig,
+    db: &CategoryDb,
+    path: &Path,
+    args: &PlanArgs,
+) -> anyhow::Result<(FitsInput, Vec<RegistrationSummary>)> {
+    let viewpoint = match &args.viewpoint {
+        Some(text) => {
+            let v = parse_numbers(text, 3, "--viewpoint")?;
+            [v[0], v[1], v[2]]
+        }
+        None => {
+            let eye = cell.base_from_camera().translation.vector;
+            [eye.x, eye.y, eye.z]
+        }
+    };
+    let params = RegisterParams {
+        viewpoint_m: Some(viewpoint),
+        ..RegisterParams::default()
+    };
+    let target = read_cloud(path)?;
+    let models = ModelSet::from_category(db, &params)
+        .with_context(|| format!("{}: preparing the models", db.dir.display()))?;
+    let registrations = register_all(&target, &models, &params, args.seed)
+        .with_context(|| format!("{}", path.display()))?;
+    let summary: Vec<RegistrationSummary> = registrations
+        .iter()
+        .map(|r| {
+            let (status, reason) = match &r.status {
+                RegistrationStatus::Ok => ("ok", None),
+                RegistrationStatus::Failed(why) => ("failed", Some(why.clone())),
+            };
+            RegistrationSummary {
+                model: r.model.clone(),
+                status,
+                reason,
+                eps_m2: r.eps_m2.is_finite().then_some(r.eps_m2),
+                sigma_m2: r.sigma_m2.is_finite().then_some(r.sigma_m2),
+            }
+        })
+        .collect();
+    let input = FitsInput {
+        fits: registrations.iter().filter_map(|r| r.fit()).collect(),
+        unregistered: summary
+            .iter()
+            .filter_map(|s| {
+                Some(Unregistered {
+                    model: s.model.clone(),
+                    reason: s.reason.clone()?,
+                })
+            })
+            .collect(),
+    };
+    if input.fits.is_empty() {
+        let failed: Vec<String> = input
+            .unregistered
+            .iter()
+            .map(|u| format!("{} ({})", u.model, u.reason))
+            .collect();
+        anyhow::bail!(
+            "{}: no model of {} registered: {}",
+            path.display(),
+            db.dir.display(),
+            failed.join(", ")
+        );
+    }
+    Ok((input, summary))
 }
 
 fn pose_text(pose: &Pose) -> String {
@@ -182,14 +305,39 @@ fn grasp_text(name: &str, g: &PlannedGrasp) -> String {
 /// Runs `cell plan`.
 pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     let cell = CellConfig::load(config)?;
-    let fits_path = args.fits.as_deref().expect("clap requires a target");
-    let fits = read_fits(fits_path)?;
-    let (grasps_path, grasps) = match (&args.db, &args.grasps) {
-        (Some(dir), _) => {
-            let db = CategoryDb::load(dir)?;
-            let grasps = example_grasps(&db, &fits, &args.task)
-                .with_context(|| format!("{}: task {:?}", dir.display(), args.task))?;
-            (dir.as_path(), grasps)
+    if let (Some(cloud), None) = (&args.cloud, &args.db) {
+        anyhow::bail!(
+            "--cloud {}: give --db, the category database whose models are registered to it",
+            cloud.display()
+        );
+    }
+    let db = args.db.as_deref().map(load_db).transpose()?;
+    if let (Some(db), Some(_)) = (&db, &args.cloud) {
+        // A task without grasps is an error before the registration runs.
+        if let Err(e @ crate::plan::PlanError::NoGraspsForTask { .. }) =
+            example_grasps(db, &[], &args.task)
+        {
+            return Err(anyhow::Error::new(e).context(format!(
+                "{}: task {:?}",
+                db.dir.display(),
+                args.task
+            )));
+        }
+    }
+    let (fits_path, input, registrations) = match (&args.fits, &args.cloud, &db) {
+        (Some(file), _, _) => (file.as_path(), read_fits_input(file)?, None),
+        (None, Some(cloud), Some(db)) => {
+            let (input, summary) = register_cloud(&cell, db, cloud, &args)?;
+            (cloud.as_path(), input, Some(summary))
+        }
+        _ => unreachable!("clap requires --fits or --cloud; --cloud without --db returned above"),
+    };
+    let fits = input.fits;
+    let (grasps_path, grasps) = match (&db, &args.grasps) {
+        (Some(db), _) => {
+            let grasps = example_grasps(db, &fits, &args.task)
+                .with_context(|| format!("{}: task {:?}", db.dir.display(), args.task))?;
+            (db.dir.as_path(), grasps)
         }
         (None, Some(file)) => (file.as_path(), read_grasps(file, &fits)?),
         (None, None) => unreachable!("clap requires --db or --grasps"),
@@ -218,12 +366,39 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     let report = PlanReport {
         fits: fits_path,
         grasps: grasps_path,
+        seed: args.cloud.is_some().then_some(args.seed),
+        registrations,
+        unregistered: input.unregistered,
         options,
         outcome,
     };
     emit(args.json, &report, |r| {
         let plan = &r.outcome.plan;
-        let mut text = format!(
+        let mut text = String::new();
+        if let (Some(regs), Some(seed)) = (&r.registrations, r.seed) {
+            text += &format!(
+                "registered {} models to {} (seed {seed}):\n",
+                regs.len(),
+                r.fits.display()
+            );
+            for g in regs {
+                text += &format!(
+                    "  {:<16} {:<6} eps {:>9.3} mm^2  sigma {:>9.3} mm^2{}\n",
+                    g.model,
+                    g.status,
+                    g.eps_m2.unwrap_or(f64::NAN) * 1e6,
+                    g.sigma_m2.unwrap_or(f64::NAN) * 1e6,
+                    g.reason
+                        .as_deref()
+                        .map(|why| format!("  ({why})"))
+                        .unwrap_or_default()
+                );
+            }
+        } else if !r.unregistered.is_empty() {
+            let names: Vec<&str> = r.unregistered.iter().map(|u| u.model.as_str()).collect();
+            text += &format!("left out (registration failed): {}\n", names.join(", "));
+        }
+        text += &format!(
             "task {} with {} over {} grasps ({} evaluations, {} reach checks)\n",
             plan.task,
             plan.kernel.name(),

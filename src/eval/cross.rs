@@ -3,7 +3,9 @@
 //! another (knives); per test object, the epsilon of our grasp with each kernel and
 //! of best single.
 
-use super::experiment::{run_target, Registrar, Setup, Target, TargetReport};
+use super::experiment::{
+    run_target, steps_per_target, Registrar, RegistrationStats, Setup, Target, TargetReport,
+};
 use super::loo::{tally_rows, TallyRow};
 use super::view::ViewKind;
 use super::{check_request, EvalError};
@@ -12,11 +14,13 @@ use crate::plan::Kernel;
 use rayon::prelude::*;
 use serde::Serialize;
 
-/// One line of Table 1: a test object and task.
+/// One line of Table 1: a test object (at one placement) and task.
 #[derive(Debug, Clone, Serialize)]
 pub struct CrossRow {
     /// The test object.
     pub target: String,
+    /// Its placement (0-based).
+    pub placement: usize,
     /// The task.
     pub task: String,
     /// Epsilon of our grasp per kernel, in the report's kernel order.
@@ -30,8 +34,12 @@ pub struct CrossRow {
 /// The result of a cross-category experiment.
 #[derive(Debug, Clone, Serialize)]
 pub struct CrossReport {
+    /// Training category.
+    pub train_category: String,
     /// Training database directory.
     pub train: String,
+    /// Test category.
+    pub test_category: String,
     /// Test database directory (its meshes are the test objects).
     pub test: String,
     /// Complete or partial views.
@@ -40,16 +48,22 @@ pub struct CrossReport {
     pub tasks: Vec<String>,
     /// The kernels run.
     pub kernels: Vec<Kernel>,
+    /// Epsilon difference under which grasps count as equal.
+    pub equal_tolerance: f64,
     /// Whether the arm's reachability constrained the grasps.
     pub reachability: bool,
     /// The seed.
     pub seed: u64,
+    /// Placements of each test object.
+    pub placements: usize,
     /// Table 1: one row per test object and task that ran.
     pub table: Vec<CrossRow>,
     /// Better / equal / worse per task and kernel.
     pub rows: Vec<TallyRow>,
     /// Tasks or targets that could not run.
     pub skipped: usize,
+    /// How well the training models registered to the targets.
+    pub registration: RegistrationStats,
     /// Per target: pose, fits, every run.
     pub targets: Vec<TargetReport>,
 }
@@ -72,21 +86,26 @@ pub fn cross_category(
     }
     let tasks = check_request(train, tasks, kernels)?;
     if let Some(p) = progress {
-        p.set_length(test.file.models.len() as u64);
+        p.set_length(
+            (test.file.models.len() * setup.placements) as u64
+                * steps_per_target(tasks.len(), kernels.len()),
+        );
     }
-    let targets: Vec<TargetReport> = (0..test.file.models.len())
+    let n = test.file.models.len();
+    // Placement-major: the first placement of every model gets the same seeds
+    // whatever the number of placements.
+    let targets: Vec<TargetReport> = (0..n * setup.placements)
         .into_par_iter()
-        .map(|index| {
+        .map(|ordinal| {
+            let index = ordinal % n;
             let target = Target {
                 db: test,
                 index,
-                ordinal: index as u64,
+                ordinal: ordinal as u64,
             };
-            let r = run_target(setup, target, train, None, &tasks, kernels, registrar);
-            if let Some(p) = progress {
-                p.inc(1);
-            }
-            r
+            run_target(
+                setup, target, train, None, &tasks, kernels, registrar, progress,
+            )
         })
         .collect::<Result<_, _>>()?;
     let mut table = Vec::new();
@@ -96,6 +115,7 @@ pub fn cross_category(
             let Some(first) = runs.first() else { continue };
             table.push(CrossRow {
                 target: t.target.clone(),
+                placement: t.placement,
                 task: task.clone(),
                 epsilon: runs
                     .iter()
@@ -107,16 +127,21 @@ pub fn cross_category(
         }
     }
     Ok(CrossReport {
+        train_category: train.file.category.name().to_string(),
         train: train.dir.display().to_string(),
+        test_category: test.file.category.name().to_string(),
         test: test.dir.display().to_string(),
         view: setup.view,
         rows: tally_rows(&targets, &tasks, kernels, setup.equal_tolerance),
         skipped: targets.iter().map(|t| t.skipped.len()).sum(),
+        registration: RegistrationStats::of(&targets),
         table,
         tasks,
         kernels: kernels.to_vec(),
+        equal_tolerance: setup.equal_tolerance,
         reachability: setup.reach.is_some(),
         seed: setup.seed,
+        placements: setup.placements,
         targets,
     })
 }

@@ -13,8 +13,9 @@ use super::view::{complete_view, partial_view, PlacementRegion, ViewKind};
 use super::EvalError;
 use crate::category::CategoryDb;
 use crate::cloud::PointCloud;
-use crate::geometry::PoseJson;
+use crate::geometry::{pose_error, PoseJson};
 use crate::mesh::procedural::instance_seed;
+use crate::plan::category::example_grasps;
 use crate::plan::{plan, Kernel, ModelFit, PlanError, PlanOptions, PlannedGrasp, Reachability};
 use crate::quality::autograsp::GraspObject;
 use crate::robot::hand::HandModel;
@@ -60,6 +61,8 @@ pub struct Setup<'a> {
     pub equal_tolerance: f64,
     /// Seed of placements, views and registration.
     pub seed: u64,
+    /// Placements (each with its own view and registration) of every test object.
+    pub placements: usize,
 }
 
 impl Setup<'_> {
@@ -78,6 +81,9 @@ impl Setup<'_> {
                 self.equal_tolerance,
                 "must be finite and >= 0",
             );
+        }
+        if self.placements == 0 {
+            return bad("placements", 0.0, "must be >= 1");
         }
         if self.view == ViewKind::Complete && self.complete_points == 0 {
             return bad("complete-view points", 0.0, "must be > 0");
@@ -147,10 +153,78 @@ pub struct Skipped {
 pub struct FitSummary {
     /// The model.
     pub model: String,
+    /// The registered model frame in the base frame (`T_i`).
+    pub base_from_model: PoseJson,
     /// Fitting error (m^2).
     pub eps_m2: f64,
     /// Standard deviation of the squared distances (m^2).
     pub sigma_m2: f64,
+    /// Distance of `T_i`'s origin from the test object's true pose (mm). The
+    /// procedural models of a category share a canonical frame (base centre at the
+    /// origin, z up, a mug's handle along +x), so this, [`Self::tilt_deg`] and
+    /// [`Self::yaw_deg`] measure the registration's error, up to the shapes'
+    /// differences.
+    pub offset_mm: f64,
+    /// Angle between the registered model's z axis and the object's (deg): 0 upright,
+    /// 90 lying on its side, 180 upside down.
+    pub tilt_deg: f64,
+    /// Rotation of the registered model about the object's z axis (deg, 0..180; the
+    /// twist of the swing-twist decomposition): where a mug's handle ends up.
+    /// Irrelevant for a rotationally symmetric object (a bottle).
+    pub yaw_deg: f64,
+}
+
+/// Tilt and yaw (deg) of `model` relative to `object`, as [`FitSummary`] defines them.
+pub fn tilt_and_yaw_deg(
+    object: &crate::geometry::Pose,
+    model: &crate::geometry::Pose,
+) -> (f64, f64) {
+    let rel = object.rotation.inverse() * model.rotation;
+    let z = nalgebra::Vector3::z();
+    let tilt = (rel * z).angle(&z);
+    let q = rel.quaternion();
+    let yaw = crate::geometry::wrap_angle(2.0 * q.k.atan2(q.w)).abs();
+    (tilt.to_degrees(), yaw.to_degrees())
+}
+
+/// Registration over the targets of an experiment, in the units a reader checks.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct RegistrationStats {
+    /// Registrations attempted (targets seen x training models).
+    pub attempted: usize,
+    /// Of those, the ones that registered.
+    pub registered: usize,
+    /// Median [`FitSummary::offset_mm`] over the registered (NaN: none).
+    pub median_offset_mm: f64,
+    /// Median [`FitSummary::tilt_deg`] over the registered.
+    pub median_tilt_deg: f64,
+    /// Median [`FitSummary::yaw_deg`] over the registered.
+    pub median_yaw_deg: f64,
+    /// Registered fits more than 30 degrees from upright (lying, upside down).
+    pub tilt_over_30_deg: usize,
+    /// Registered fits turned more than 30 degrees about the vertical (for a mug: the
+    /// handle elsewhere).
+    pub yaw_over_30_deg: usize,
+}
+
+impl RegistrationStats {
+    /// The statistics of `targets`' fits.
+    pub fn of(targets: &[TargetReport]) -> RegistrationStats {
+        let fits = || targets.iter().flat_map(|t| &t.fits);
+        let mut mm: Vec<f64> = fits().map(|f| f.offset_mm).collect();
+        let mut tilt: Vec<f64> = fits().map(|f| f.tilt_deg).collect();
+        let mut yaw: Vec<f64> = fits().map(|f| f.yaw_deg).collect();
+        let registered = mm.len();
+        RegistrationStats {
+            attempted: registered + targets.iter().map(|t| t.unregistered.len()).sum::<usize>(),
+            registered,
+            median_offset_mm: crate::stats::median(&mut mm),
+            median_tilt_deg: crate::stats::median(&mut tilt),
+            median_yaw_deg: crate::stats::median(&mut yaw),
+            tilt_over_30_deg: tilt.iter().filter(|&&d| d > 30.0).count(),
+            yaw_over_30_deg: yaw.iter().filter(|&&d| d > 30.0).count(),
+        }
+    }
 }
 
 /// Everything that happened to one target.
@@ -158,12 +232,16 @@ pub struct FitSummary {
 pub struct TargetReport {
     /// The test object.
     pub target: String,
+    /// Which of its placements (0-based).
+    pub placement: usize,
     /// Its true pose.
     pub base_from_object: PoseJson,
     /// Points of its view.
     pub view_points: usize,
     /// The registered training models.
     pub fits: Vec<FitSummary>,
+    /// Training models that did not register (left out of the planning).
+    pub unregistered: Vec<String>,
     /// One record per task and kernel that ran.
     pub runs: Vec<RunRecord>,
     /// What could not run.
@@ -177,7 +255,8 @@ pub struct Target<'a> {
     pub db: &'a CategoryDb,
     /// Index of the model in that database.
     pub index: usize,
-    /// Position in the experiment (seeds derive from it).
+    /// Position in the experiment (seeds derive from it): `placement * models +
+    /// index`.
     pub ordinal: u64,
 }
 
@@ -189,12 +268,47 @@ fn seeds(seed: u64, ordinal: u64) -> [u64; 3] {
 fn is_skippable(e: &PlanError) -> bool {
     matches!(
         e,
-        PlanError::NoFits | PlanError::NoGraspsForTask { .. } | PlanError::ZeroWeight { .. }
+        PlanError::NoFits
+            | PlanError::NoGraspsForTask { .. }
+            | PlanError::NoFitForTask { .. }
+            | PlanError::ZeroWeight { .. }
     )
+}
+
+/// Progress steps of one target: its registration, then one per task and kernel.
+pub fn steps_per_target(tasks: usize, kernels: usize) -> u64 {
+    1 + (tasks * kernels) as u64
+}
+
+/// Advances a progress bar through one target's steps; whatever is left (skipped
+/// tasks, an early return) is counted when it is dropped, so the bar ends full.
+struct Steps<'a> {
+    bar: Option<&'a indicatif::ProgressBar>,
+    left: u64,
+}
+
+impl Steps<'_> {
+    fn tick(&mut self) {
+        if self.left > 0 {
+            self.left -= 1;
+            if let Some(bar) = self.bar {
+                bar.inc(1);
+            }
+        }
+    }
+}
+
+impl Drop for Steps<'_> {
+    fn drop(&mut self) {
+        if let Some(bar) = self.bar {
+            bar.inc(self.left);
+        }
+    }
 }
 
 /// Runs one target: `train` holds the training models and their grasps (`exclude`
 /// names a model of `train` left out, the target itself in leave-one-out).
+/// `progress` advances by [`steps_per_target`] over the call.
 #[allow(clippy::too_many_arguments)]
 pub fn run_target(
     setup: &Setup,
@@ -204,7 +318,12 @@ pub fn run_target(
     tasks: &[String],
     kernels: &[Kernel],
     registrar: &dyn Registrar,
+    progress: Option<&indicatif::ProgressBar>,
 ) -> Result<TargetReport, EvalError> {
+    let mut steps = Steps {
+        bar: progress,
+        left: steps_per_target(tasks.len(), kernels.len()),
+    };
     let entry = &target.db.file.models[target.index];
     let name = entry.name.clone();
     let mesh = &target.db.meshes[target.index];
@@ -212,9 +331,11 @@ pub fn run_target(
     let base_from_object = setup.region.place(mesh, placement_seed);
     let mut report = TargetReport {
         target: name.clone(),
+        placement: (target.ordinal / target.db.file.models.len() as u64) as usize,
         base_from_object: PoseJson::from(&base_from_object),
         view_points: 0,
         fits: Vec::new(),
+        unregistered: Vec::new(),
         runs: Vec::new(),
         skipped: Vec::new(),
     };
@@ -250,7 +371,9 @@ pub fn run_target(
         }
     };
     report.view_points = cloud.len();
-    let fits = match registrar.fits(&cloud, exclude, register_seed) {
+    let registered = registrar.fits(&cloud, exclude, register_seed);
+    steps.tick();
+    let fits = match registered {
         Ok(f) if f.is_empty() => {
             skip_all(&mut report, "registration: no model registered".into());
             return Ok(report);
@@ -263,11 +386,27 @@ pub fn run_target(
     };
     report.fits = fits
         .iter()
-        .map(|f| FitSummary {
-            model: f.name.clone(),
-            eps_m2: f.eps_m2,
-            sigma_m2: f.sigma_m2,
+        .map(|f| {
+            let (dp, _) = pose_error(&f.base_from_model, &base_from_object);
+            let (tilt_deg, yaw_deg) = tilt_and_yaw_deg(&base_from_object, &f.base_from_model);
+            FitSummary {
+                model: f.name.clone(),
+                base_from_model: PoseJson::from(&f.base_from_model),
+                eps_m2: f.eps_m2,
+                sigma_m2: f.sigma_m2,
+                offset_mm: dp * 1e3,
+                tilt_deg,
+                yaw_deg,
+            }
         })
+        .collect();
+    report.unregistered = train
+        .file
+        .models
+        .iter()
+        .map(|m| &m.name)
+        .filter(|n| Some(n.as_str()) != exclude && !fits.iter().any(|f| &f.name == *n))
+        .cloned()
         .collect();
 
     let path = target.db.dir.join(&entry.mesh);
@@ -348,6 +487,7 @@ pub fn run_target(
                 }
             };
             let ours = run_sim(&outcome.plan.grasp)?;
+            steps.tick();
             // Best single does not depend on the kernel: simulate it once per task.
             let single = match single {
                 Some(s) => s,
@@ -377,31 +517,76 @@ pub fn run_target(
     Ok(report)
 }
 
-// TEMPORARY until plan::category lands on main.
-fn example_grasps(
-    db: &CategoryDb,
-    fits: &[ModelFit],
-    task: &str,
-) -> Result<Vec<crate::plan::ExampleGrasp>, PlanError> {
-    let out: Vec<_> = db
-        .grasps_for(task)
-        .filter_map(|g| {
-            let model = fits.iter().position(|f| f.name == g.model)?;
-            Some(crate::plan::ExampleGrasp {
-                model,
-                task: g.task.clone(),
-                model_from_palm: g.params(),
-                spread_rad: g.spread_rad,
-                q: g.q,
-                sigma: g.sigma,
-            })
-        })
-        .collect();
-    if out.is_empty() {
-        return Err(PlanError::NoGraspsForTask {
-            task: task.into(),
-            available: String::new(),
-        });
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{pose_from_params, Pose};
+    use std::f64::consts::FRAC_PI_2;
+
+    #[test]
+    fn tilt_and_yaw_separate_lying_from_turned() {
+        let object = pose_from_params(&[0.6, 0.1, 0.0, 0.0, 0.0, 1.0]);
+        let close = |(t, y): (f64, f64), (et, ey): (f64, f64)| {
+            assert!((t - et).abs() < 1e-9 && (y - ey).abs() < 1e-9, "{t} {y}");
+        };
+        close(tilt_and_yaw_deg(&object, &object), (0.0, 0.0));
+        // Turned about the object's vertical by 120 degrees (either way).
+        let turned = object * pose_from_params(&[0.0, 0.0, 0.0, 0.0, 0.0, 2.0944]);
+        close(
+            tilt_and_yaw_deg(&object, &turned),
+            (0.0, 2.0944f64.to_degrees()),
+        );
+        let turned = object * pose_from_params(&[0.0, 0.0, 0.0, 0.0, 0.0, -2.0944]);
+        close(
+            tilt_and_yaw_deg(&object, &turned),
+            (0.0, 2.0944f64.to_degrees()),
+        );
+        // Lying on its side (about x), no twist about the vertical.
+        let lying = object * pose_from_params(&[0.0, 0.0, 0.0, FRAC_PI_2, 0.0, 0.0]);
+        close(
+            tilt_and_yaw_deg(&object, &lying),
+            (FRAC_PI_2.to_degrees(), 0.0),
+        );
+        // Upside down.
+        let (t, _) = tilt_and_yaw_deg(
+            &object,
+            &(object * pose_from_params(&[0.0, 0.0, 0.0, 0.0, std::f64::consts::PI, 0.0])),
+        );
+        assert!((t - 180.0).abs() < 1e-6, "{t}");
     }
-    Ok(out)
+
+    #[test]
+    fn registration_stats_count_and_take_medians() {
+        let fit = |mm: f64, tilt: f64, yaw: f64| FitSummary {
+            model: "m".into(),
+            base_from_model: PoseJson::from(&Pose::identity()),
+            eps_m2: 1e-5,
+            sigma_m2: 1e-6,
+            offset_mm: mm,
+            tilt_deg: tilt,
+            yaw_deg: yaw,
+        };
+        let target = |fits: Vec<FitSummary>, unregistered: usize| TargetReport {
+            target: "t".into(),
+            placement: 0,
+            base_from_object: PoseJson::from(&Pose::identity()),
+            view_points: 100,
+            fits,
+            unregistered: vec!["x".into(); unregistered],
+            runs: Vec::new(),
+            skipped: Vec::new(),
+        };
+        let stats = RegistrationStats::of(&[
+            target(vec![fit(1.0, 2.0, 40.0), fit(3.0, 90.0, 1.0)], 1),
+            target(vec![fit(2.0, 1.0, 170.0)], 2),
+        ]);
+        assert_eq!((stats.attempted, stats.registered), (6, 3));
+        assert_eq!(stats.median_offset_mm, 2.0);
+        assert_eq!(stats.median_tilt_deg, 2.0);
+        assert_eq!(stats.median_yaw_deg, 40.0);
+        assert_eq!((stats.tilt_over_30_deg, stats.yaw_over_30_deg), (1, 2));
+        let none = RegistrationStats::of(&[target(Vec::new(), 2)]);
+        assert_eq!((none.attempted, none.registered), (2, 0));
+        assert!(none.median_offset_mm.is_nan());
+    }
 }

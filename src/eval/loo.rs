@@ -4,7 +4,9 @@
 //! epsilons.
 
 use super::compare::{Pair, Tally};
-use super::experiment::{run_target, Registrar, Setup, Target, TargetReport};
+use super::experiment::{
+    run_target, steps_per_target, Registrar, RegistrationStats, Setup, Target, TargetReport,
+};
 use super::view::ViewKind;
 use super::{check_request, EvalError};
 use crate::category::CategoryDb;
@@ -43,10 +45,16 @@ pub struct LooReport {
     pub reachability: bool,
     /// The seed.
     pub seed: u64,
+    /// Models in the database (each held out in turn).
+    pub models: usize,
+    /// Placements of each held-out model.
+    pub placements: usize,
     /// Runs simulated (targets x tasks x kernels that ran).
     pub runs: usize,
     /// Tasks or targets that could not run.
     pub skipped: usize,
+    /// How well the training models registered to the targets.
+    pub registration: RegistrationStats,
     /// One row per task and kernel, then one per kernel over all tasks (`all`).
     pub rows: Vec<TallyRow>,
     /// Per target: pose, fits, every run.
@@ -88,7 +96,7 @@ pub fn tally_rows(
 }
 
 /// Runs leave-one-out over `db` for `tasks` (empty: the database's) and `kernels`;
-/// targets run in parallel, `progress` advances once per target.
+/// targets run in parallel; `progress` advances per registration and per run.
 pub fn leave_one_out(
     setup: &Setup,
     db: &CategoryDb,
@@ -106,22 +114,34 @@ pub fn leave_one_out(
     }
     let tasks = check_request(db, tasks, kernels)?;
     if let Some(p) = progress {
-        p.set_length(db.file.models.len() as u64);
+        p.set_length(
+            (db.file.models.len() * setup.placements) as u64
+                * steps_per_target(tasks.len(), kernels.len()),
+        );
     }
-    let targets: Vec<TargetReport> = (0..db.file.models.len())
+    let n = db.file.models.len();
+    // Placement-major: the first placement of every model gets the same seeds
+    // whatever the number of placements.
+    let targets: Vec<TargetReport> = (0..n * setup.placements)
         .into_par_iter()
-        .map(|index| {
+        .map(|ordinal| {
+            let index = ordinal % n;
             let name = &db.file.models[index].name;
             let target = Target {
                 db,
                 index,
-                ordinal: index as u64,
+                ordinal: ordinal as u64,
             };
-            let r = run_target(setup, target, db, Some(name), &tasks, kernels, registrar);
-            if let Some(p) = progress {
-                p.inc(1);
-            }
-            r
+            run_target(
+                setup,
+                target,
+                db,
+                Some(name),
+                &tasks,
+                kernels,
+                registrar,
+                progress,
+            )
         })
         .collect::<Result<_, _>>()?;
     Ok(LooReport {
@@ -131,11 +151,14 @@ pub fn leave_one_out(
         rows: tally_rows(&targets, &tasks, kernels, setup.equal_tolerance),
         runs: targets.iter().map(|t| t.runs.len()).sum(),
         skipped: targets.iter().map(|t| t.skipped.len()).sum(),
+        registration: RegistrationStats::of(&targets),
         tasks,
         kernels: kernels.to_vec(),
         equal_tolerance: setup.equal_tolerance,
         reachability: setup.reach.is_some(),
         seed: setup.seed,
+        models: n,
+        placements: setup.placements,
         targets,
     })
 }

@@ -11,6 +11,10 @@
 //!   and kernel, simulation); registration is a [`Registrar`].
 //! - [`loo`]: leave-one-out (Figures 5 and 6); [`cross`]: cross-category (Table 1).
 //! - [`chart`]: the better / equal / worse bar chart as PNG.
+//! - [`registration`]: the category's registration ([`crate::register`]) as the
+//!   experiments' [`Registrar`].
+//!
+//! `cell eval loo` and `cell eval cross` run them from the command line.
 
 pub mod chart;
 pub mod compare;
@@ -18,12 +22,14 @@ pub mod cross;
 pub mod experiment;
 pub mod loo;
 pub mod outcome;
+pub mod registration;
 pub mod view;
 
 pub use compare::{Tally, Verdict, DEFAULT_EQUAL_TOLERANCE};
 pub use cross::{cross_category, CrossReport};
 pub use experiment::{Registrar, RunRecord, Setup, TargetReport};
 pub use loo::{leave_one_out, LooReport};
+pub use registration::CategoryRegistrar;
 pub use view::{PlacementRegion, ViewKind};
 
 use crate::category::CategoryDb;
