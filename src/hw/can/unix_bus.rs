@@ -706,11 +706,19 @@ mod tests {
             .unwrap();
             let mut a = UnixBus::connect(&name).unwrap();
             let mut b = UnixBus::connect(&name).unwrap();
-            // Read while sending, so no receive queue overflows.
+            // Read while sending, so no receive queue overflows, until every frame the
+            // hub forwarded has arrived (known once it has counted all 400): no timing
+            // decides what the test sees, however loaded the machine.
+            let expected = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(usize::MAX));
+            let wanted = std::sync::Arc::clone(&expected);
             let reader = std::thread::spawn(move || {
                 let mut got = Vec::new();
-                while let Some(f) = b.recv(Duration::from_millis(500)).unwrap() {
-                    got.push(u16::from_le_bytes([f.data()[0], f.data()[1]]));
+                let deadline = std::time::Instant::now() + Duration::from_secs(60);
+                while got.len() < wanted.load(std::sync::atomic::Ordering::SeqCst) {
+                    assert!(std::time::Instant::now() < deadline, "{} frames", got.len());
+                    if let Some(f) = b.recv(Duration::from_millis(50)).unwrap() {
+                        got.push(u16::from_le_bytes([f.data()[0], f.data()[1]]));
+                    }
                 }
                 got
             });
@@ -718,11 +726,22 @@ mod tests {
                 a.send(&CanFrame::new(0x100, &i.to_le_bytes()).unwrap())
                     .unwrap();
             }
-            let got = reader.join().unwrap();
+            let deadline = std::time::Instant::now() + Duration::from_secs(60);
+            while hub.fault_counts().sent < 400 {
+                assert!(
+                    std::time::Instant::now() < deadline,
+                    "{:?}",
+                    hub.fault_counts()
+                );
+                std::thread::sleep(Duration::from_millis(1));
+            }
             let counts = hub.fault_counts();
             assert_eq!(counts.sent, 400);
-            assert_eq!(counts.lost as usize, 400 - got.len());
-            got
+            expected.store(
+                400 - counts.lost as usize,
+                std::sync::atomic::Ordering::SeqCst,
+            );
+            reader.join().unwrap()
         };
         let first = run(3);
         // Binomial(400, 0.75): mean 300, sd 8.7; +-5 sd.
