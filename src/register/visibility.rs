@@ -218,10 +218,12 @@ impl RangeImage {
                 continue;
             };
             let seen = self.nearest_m[cell];
-            contradicted += if range + margin_m < seen {
+            contradicted += if !seen.is_finite() {
+                self.outside[cell] as f64
+            } else if range + margin_m < seen {
                 1.0
             } else {
-                self.outside[cell] as f64
+                0.0
             };
         }
         contradicted / total.max(1) as f64
