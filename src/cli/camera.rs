@@ -1,6 +1,6 @@
 //! `cell camera render` and `cell bench render`: the simulated depth camera.
 
-use super::bench::{load_average, median, percentile, RenderBenchArgs};
+use super::bench::{cpu_ms, load_average, median, percentile, RenderBenchArgs};
 use super::objects::write_atomically;
 use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
@@ -290,26 +290,6 @@ struct RenderBench {
     meets_goal: bool,
     /// 1, 5 and 15 minute load averages at the end of the run.
     load_average: Option<[f64; 3]>,
-}
-
-/// CPU time (ms) of the calling thread (`per_thread`) or of the whole process.
-fn cpu_ms(per_thread: bool) -> f64 {
-    let clock = if per_thread {
-        libc::CLOCK_THREAD_CPUTIME_ID
-    } else {
-        libc::CLOCK_PROCESS_CPUTIME_ID
-    };
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; the clock ids are Linux constants.
-    let rc = unsafe { libc::clock_gettime(clock, &mut ts) };
-    assert_eq!(
-        rc, 0,
-        "clock_gettime of a CPU-time clock cannot fail on Linux"
-    );
-    ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6
 }
 
 /// Minor page faults of the process so far (0 if getrusage fails).
