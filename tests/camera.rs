@@ -766,6 +766,15 @@ fn bench_render_reports_medians_and_a_one_thread_baseline() {
         assert!(v[key].as_f64().unwrap() > 0.0, "{key}: {v}");
     }
     assert_eq!(v["one_thread_frames_identical"], true, "{v}");
+    for key in [
+        "render_cpu_ms_median",
+        "render_cpu_ms_median_one_thread",
+        "ray_cast_ms_median",
+    ] {
+        assert!(v[key].as_f64().unwrap() > 0.0, "{key}: {v}");
+    }
+    // The rasteriser sees what the BVH ray casts see.
+    assert!(v["ray_cast_agreement"].as_f64().unwrap() > 0.9999, "{v}");
     assert!(v["object_valid_fraction"].as_f64().unwrap() > 0.001, "{v}");
     assert_eq!(v["goal_ms"].as_f64(), Some(30.0));
 }

@@ -315,7 +315,7 @@ impl Projected<'_> {
             let (lo, hi) = (min3(p, q, r), max3(p, q, r));
             let first = (lo - 1e-3).ceil().max(range.start as f64);
             let last = (hi + 1e-3).floor().min(range.end as f64 - 1.0);
-            (first <= last).then(|| first as usize..=last as usize)
+            (first <= last).then_some(first as usize..=last as usize)
         };
         for triangle in triangles {
             let [pa, pb, pc] = triangle.map(|i| self.pixels[i as usize]);
@@ -328,7 +328,8 @@ impl Projected<'_> {
             let [a, b, c] = triangle.map(|i| self.vertices[i as usize].coords);
             let n = (b - a).cross(&(c - a));
             let n_norm_squared = n.norm_squared();
-            if !(n_norm_squared > 0.0) {
+            // Degenerate (or non-finite) triangles have no plane to hit.
+            if !n_norm_squared.is_normal() {
                 continue;
             }
             let n_dot_a = n.dot(&a);
@@ -797,7 +798,7 @@ impl DepthCamera {
         let intr = &self.intrinsics;
         let (mut u0, mut u1, mut v0, mut v1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
         for p in vertices {
-            if !(p.z > 1e-6) {
+            if p.z.is_nan() || p.z <= 1e-6 {
                 return None;
             }
             let u = intr.fx_px * p.x / p.z + intr.cx_px;
@@ -847,7 +848,10 @@ fn mark_edges(
         let z = f64::from(here[u]);
         let jump = edge_jump_fraction * z;
         // A missing neighbour (NaN) breaks too.
-        let breaks = |n: f32| !((f64::from(n) - z).abs() <= jump);
+        let breaks = |n: f32| {
+            let d = (f64::from(n) - z).abs();
+            d.is_nan() || d > jump
+        };
         let on_edge = (u > 0 && breaks(here[u - 1]))
             || (u + 1 < width && breaks(here[u + 1]))
             || above.is_some_and(|r| breaks(r[u]))
