@@ -1,6 +1,9 @@
-//! A simulated Kinect-class depth camera: ray casting a [`Scene`] from a pinhole
-//! camera, then the sensor's error model, giving an organised point cloud in the
-//! camera optical frame (z forward, x right, y down; NaN where there is no return).
+//! A simulated Kinect-class depth camera: the first surface of a [`Scene`] along
+//! each pixel's ray from a pinhole camera (the table analytically, objects
+//! rasterised with exact per-pixel ray-triangle tests, or ray cast through their
+//! BVH where they reach behind the camera), then the sensor's error model, giving
+//! an organised point cloud in the camera optical frame (z forward, x right,
+//! y down; NaN where there is no return).
 //!
 //! The error model ([`NoiseModel::kinect_v1`]), applied to the true depth `z` of
 //! each pixel's surface:
