@@ -661,6 +661,88 @@ fn frames_do_not_depend_on_the_thread_count() {
     }
 }
 
+/// Pixels whose surface or status differ between two frames, and the largest
+/// depth difference over the pixels valid in both (m).
+fn frame_difference(a: &DepthFrame, b: &DepthFrame) -> (usize, f64) {
+    let differing = (0..a.status.len())
+        .filter(|&i| a.status[i] != b.status[i] || a.surface[i] != b.surface[i])
+        .count();
+    let largest = a
+        .depth_m
+        .iter()
+        .zip(&b.depth_m)
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .map(|(x, y)| (x - y).abs() as f64)
+        .fold(0.0, f64::max);
+    (differing, largest)
+}
+
+#[test]
+fn rasterised_objects_match_ray_casting_their_bvh() {
+    // Several objects, one partly hiding another, from the configured camera:
+    // the rasteriser and per-pixel BVH ray casts (the reference) see the same
+    // surfaces with the same dropouts, and the same noise draws give the same
+    // depths up to the last bits of the true depth (at most one disparity step
+    // where those bits move a depth across a rounding boundary).
+    let config = config();
+    let camera = DepthCamera::from_config(&config.camera, config.base_from_camera());
+    let mut scene = Scene::new(Some(TableBox::from(&config.table)));
+    let (mug, _) = generate(Category::Mug, 5);
+    scene
+        .add(
+            "mug",
+            mug,
+            pose_from_params(&[0.62, 0.02, 0.0, 0.0, 0.0, 2.0]),
+        )
+        .unwrap();
+    scene
+        .add(
+            "sphere",
+            uv_sphere(0.04, 24, 48),
+            Pose::translation(0.75, 0.05, 0.05),
+        )
+        .unwrap();
+    scene
+        .add(
+            "box",
+            cuboid([0.05, 0.03, 0.04]),
+            pose_from_params(&[0.55, -0.15, 0.04, 0.3, -0.2, 0.7]),
+        )
+        .unwrap();
+    let raster = camera.render(&scene, 21);
+    let cast = camera.render_ray_cast(&scene, 21);
+    for k in 0..3 {
+        let object = Surface::Object(k);
+        assert!(
+            raster.count(|r, s| s == object && r == Return::Valid) > 300,
+            "object {k}"
+        );
+    }
+    let (differing, largest) = frame_difference(&raster, &cast);
+    let step = 1.01 * 1.3f64.powi(2) / (8.0 * 525.0 * 0.075);
+    assert!(differing <= 3, "{differing} pixels differ");
+    assert!(largest <= step, "depths differ by {largest} m");
+
+    // An object reaching behind the camera (a large box around it) is ray cast
+    // in either mode: every pixel sees its inside, the same both ways.
+    let eye = camera.base_from_camera.translation.vector;
+    let mut around = Scene::new(None);
+    around
+        .add(
+            "room",
+            cuboid([1.0, 1.0, 1.0]),
+            Pose::translation(eye.x, eye.y, eye.z),
+        )
+        .unwrap();
+    let raster = camera.render(&around, 3);
+    let cast = camera.render_ray_cast(&around, 3);
+    assert_eq!(
+        raster.count(|_, s| s == Surface::Object(0)),
+        raster.status.len()
+    );
+    assert_eq!(frame_difference(&raster, &cast), (0, 0.0));
+}
+
 #[test]
 fn bench_render_reports_medians_and_a_one_thread_baseline() {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_cell"))
@@ -684,6 +766,15 @@ fn bench_render_reports_medians_and_a_one_thread_baseline() {
         assert!(v[key].as_f64().unwrap() > 0.0, "{key}: {v}");
     }
     assert_eq!(v["one_thread_frames_identical"], true, "{v}");
+    for key in [
+        "render_cpu_ms_median",
+        "render_cpu_ms_median_one_thread",
+        "ray_cast_ms_median",
+    ] {
+        assert!(v[key].as_f64().unwrap() > 0.0, "{key}: {v}");
+    }
+    // The rasteriser sees what the BVH ray casts see.
+    assert!(v["ray_cast_agreement"].as_f64().unwrap() > 0.9999, "{v}");
     assert!(v["object_valid_fraction"].as_f64().unwrap() > 0.001, "{v}");
     assert_eq!(v["goal_ms"].as_f64(), Some(30.0));
 }

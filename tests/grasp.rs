@@ -233,5 +233,8 @@ fn bench_quality_reports_rates() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(v["grasps_per_s"].as_f64().unwrap() > 0.0);
     assert!(v["grasps_per_s_one_thread"].as_f64().unwrap() > 0.0);
+    assert!(v["grasp_cpu_us_one_thread"].as_f64().unwrap() > 0.0);
+    assert!(v["grasps_per_s_cpu_bound"].as_f64().unwrap() > 0.0);
+    assert_eq!(v["goal_per_s"], 1000.0);
     assert_eq!(v["grasps"], 12);
 }

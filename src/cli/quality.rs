@@ -1,6 +1,6 @@
 //! `cell quality` and `cell bench quality-metric`.
 
-use super::bench::{median, QualityMetricBenchArgs};
+use super::bench::{cpu_ms, median, QualityMetricBenchArgs};
 use crate::config::CellConfig;
 use crate::geometry::{params_from_pose, parse_pose};
 use crate::mesh::load_mesh;
@@ -443,6 +443,12 @@ struct GraspBench {
     auto_grasp_per_s_one_thread: f64,
     /// Median time of one auto-grasp + epsilon on one thread (us).
     grasp_us_one_thread: f64,
+    /// CPU time of one auto-grasp + epsilon on one thread (us, median over
+    /// repeats): its cost whatever else the machine is doing.
+    grasp_cpu_us_one_thread: f64,
+    /// Evaluations per CPU-second of one thread times the threads of the
+    /// parallel run: the rate the cores give when the machine is otherwise idle.
+    grasps_per_s_cpu_bound: f64,
     goal_per_s: f64,
     meets_goal: bool,
     /// 1, 5 and 15 minute load averages at the end of the run.
@@ -496,6 +502,7 @@ pub fn bench_grasp(config: &Path, args: QualityBenchArgs) -> anyhow::Result<Exit
     let threads = pool.current_num_threads();
     let progress = indicatif::ProgressBar::new(3 * args.repeats as u64);
     let (mut parallel, mut single, mut closing) = (Vec::new(), Vec::new(), Vec::new());
+    let mut single_cpu = Vec::new();
     for _ in 0..args.repeats {
         let start = Instant::now();
         let sum: f64 = pool.install(|| {
@@ -507,13 +514,14 @@ pub fn bench_grasp(config: &Path, args: QualityBenchArgs) -> anyhow::Result<Exit
         std::hint::black_box(sum);
         parallel.push(n / start.elapsed().as_secs_f64());
         progress.inc(1);
-        let start = Instant::now();
+        let (start, cpu) = (Instant::now(), cpu_ms(true));
         let sum: f64 = poses
             .iter()
             .map(|p| evaluate(p).map_or(0.0, |e| e.epsilon))
             .sum();
         std::hint::black_box(sum);
         single.push(n / start.elapsed().as_secs_f64());
+        single_cpu.push((cpu_ms(true) - cpu) * 1e3 / n);
         progress.inc(1);
         let start = Instant::now();
         let count: usize = poses
@@ -529,6 +537,7 @@ pub fn bench_grasp(config: &Path, args: QualityBenchArgs) -> anyhow::Result<Exit
     progress.finish_and_clear();
     let grasps_per_s = median(&mut parallel);
     let one = median(&mut single);
+    let grasp_cpu_us = median(&mut single_cpu);
     let report = GraspBench {
         workload: "auto-grasp (BH8-282, 0.04 rad steps, bisection to 1e-4 rad) + fast epsilon \
                    (mu 0.5, 8 edges) at seeded poses around a procedural mug's top, side and \
@@ -556,6 +565,8 @@ pub fn bench_grasp(config: &Path, args: QualityBenchArgs) -> anyhow::Result<Exit
         parallel_speedup: grasps_per_s / one,
         auto_grasp_per_s_one_thread: median(&mut closing),
         grasp_us_one_thread: 1e6 / one,
+        grasp_cpu_us_one_thread: grasp_cpu_us,
+        grasps_per_s_cpu_bound: threads as f64 * 1e6 / grasp_cpu_us,
         goal_per_s: 1000.0,
         meets_goal: grasps_per_s >= 1000.0,
         load_average: super::bench::load_average(),

@@ -27,7 +27,7 @@ use crate::robot::hand::{Finger, HandLink, HandModel};
 use crate::robot::HandPose;
 use nalgebra::{Point3, Vector3};
 use parry3d_f64::bounding_volume::BoundingVolume;
-use parry3d_f64::query::{self, DefaultQueryDispatcher, QueryDispatcher};
+use parry3d_f64::query::{DefaultQueryDispatcher, QueryDispatcher};
 use parry3d_f64::shape::TriMeshFlags;
 use serde::Serialize;
 use std::path::Path;
@@ -160,7 +160,8 @@ impl GraspObject {
     /// Whether `point` (object frame) is inside the closed mesh.
     pub fn contains(&self, point: &Point3<f64>) -> bool {
         use parry3d_f64::query::PointQuery;
-        self.mesh.contains_local_point(point)
+        // Outside the bounding box is outside, without a nearest-point search.
+        self.mesh.local_aabb().contains_local_point(point) && self.mesh.contains_local_point(point)
     }
 
     /// The outward unit surface normal at `point` on triangle `id` (`triangle`):
@@ -582,40 +583,117 @@ fn box_triangle_gap(
 /// from everything they jump by as much as keeps every point within it.
 const FREE_MARGIN_M: f64 = 0.015;
 
-/// An oriented box in the object frame, to prune the mesh's BVH: a node is kept
-/// unless one of the three world axes or the box's three axes separates the two
-/// (conservative: no false negatives).
+/// An oriented box in the object frame, to prune the mesh's BVH and test
+/// triangles: a node is kept unless one of the three world axes or the box's
+/// three axes separates the two (conservative: no false negatives). Plain arrays
+/// with the box's world extent precomputed: this runs for every BVH node visited.
 struct Obb {
-    centre: Vector3<f64>,
-    axes: nalgebra::Matrix3<f64>,
-    abs_axes: nalgebra::Matrix3<f64>,
-    half: Vector3<f64>,
+    centre: [f64; 3],
+    /// `axes[i][k]`: component `i` (object frame) of the box's axis `k`.
+    axes: [[f64; 3]; 3],
+    abs_axes: [[f64; 3]; 3],
+    half: [f64; 3],
+    /// Half extent of the box along each object axis: `sum_k |axes[i][k]| half[k]`.
+    extent: [f64; 3],
 }
 
 impl Obb {
     fn new(object_from_box: &Pose, half: Vector3<f64>) -> Obb {
-        let axes = object_from_box.rotation.to_rotation_matrix().into_inner();
+        let m = object_from_box.rotation.to_rotation_matrix().into_inner();
+        let axes = [0, 1, 2].map(|i| [m[(i, 0)], m[(i, 1)], m[(i, 2)]]);
+        let abs_axes = axes.map(|row| row.map(f64::abs));
+        let half = [half.x, half.y, half.z];
+        let extent = abs_axes.map(|row| row[0] * half[0] + row[1] * half[1] + row[2] * half[2]);
+        let t = &object_from_box.translation.vector;
         Obb {
-            centre: object_from_box.translation.vector,
-            abs_axes: axes.abs(),
+            centre: [t.x, t.y, t.z],
             axes,
+            abs_axes,
             half,
+            extent,
         }
     }
 
     fn overlaps(&self, aabb: &parry3d_f64::bounding_volume::Aabb) -> bool {
-        let c = aabb.center().coords;
-        let e = aabb.half_extents();
-        let d = c - self.centre;
-        // World axes: the box's extent along each is sum_k |R_ik| half_k.
-        let box_extent = self.abs_axes * self.half;
-        if (0..3).any(|i| d[i].abs() > e[i] + box_extent[i]) {
-            return false;
+        let (lo, hi) = (&aabb.mins, &aabb.maxs);
+        let mut d = [0.0; 3];
+        let mut e = [0.0; 3];
+        // World axes: the box's extent along each is `extent`.
+        for i in 0..3 {
+            e[i] = 0.5 * (hi[i] - lo[i]);
+            d[i] = 0.5 * (hi[i] + lo[i]) - self.centre[i];
+            if d[i].abs() > e[i] + self.extent[i] {
+                return false;
+            }
         }
         // Box axes: the AABB's extent along axis k is sum_i |R_ik| e_i.
-        let aabb_extent = self.abs_axes.transpose() * e;
-        let d_box = self.axes.transpose() * d;
-        !(0..3).any(|k| d_box[k].abs() > self.half[k] + aabb_extent[k])
+        (0..3).all(|k| {
+            let (a, b) = (&self.axes, &self.abs_axes);
+            let d_box = a[0][k] * d[0] + a[1][k] * d[1] + a[2][k] * d[2];
+            let aabb_extent = b[0][k] * e[0] + b[1][k] * e[1] + b[2][k] * e[2];
+            d_box.abs() <= self.half[k] + aabb_extent
+        })
+    }
+
+    /// `p` (object frame) in the box's frame.
+    fn to_box(&self, p: &Point3<f64>) -> [f64; 3] {
+        let d = [
+            p.x - self.centre[0],
+            p.y - self.centre[1],
+            p.z - self.centre[2],
+        ];
+        let a = &self.axes;
+        [0, 1, 2].map(|k| a[0][k] * d[0] + a[1][k] * d[1] + a[2][k] * d[2])
+    }
+
+    /// Whether the box and the triangle `a b c` (object frame) intersect: the
+    /// separating-axis test over the box's 3 axes, the triangle's normal and the
+    /// 9 cross products of box axes and triangle edges (exact, touching counts).
+    fn intersects_triangle(&self, a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>) -> bool {
+        let v = [self.to_box(a), self.to_box(b), self.to_box(c)];
+        let h = &self.half;
+        // Box axes: the triangle's bounding box against the box.
+        for k in 0..3 {
+            let (lo, hi) = (
+                v[0][k].min(v[1][k]).min(v[2][k]),
+                v[0][k].max(v[1][k]).max(v[2][k]),
+            );
+            if lo > h[k] || hi < -h[k] {
+                return false;
+            }
+        }
+        let sub = |p: &[f64; 3], q: &[f64; 3]| [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
+        let dot = |p: &[f64; 3], q: &[f64; 3]| p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+        let cross = |p: &[f64; 3], q: &[f64; 3]| {
+            [
+                p[1] * q[2] - p[2] * q[1],
+                p[2] * q[0] - p[0] * q[2],
+                p[0] * q[1] - p[1] * q[0],
+            ]
+        };
+        let edges = [sub(&v[1], &v[0]), sub(&v[2], &v[1]), sub(&v[0], &v[2])];
+        // The triangle's plane.
+        let n = cross(&edges[0], &edges[1]);
+        let radius =
+            |axis: &[f64; 3]| h[0] * axis[0].abs() + h[1] * axis[1].abs() + h[2] * axis[2].abs();
+        if dot(&n, &v[0]).abs() > radius(&n) {
+            return false;
+        }
+        // Box axis x triangle edge.
+        for edge in &edges {
+            for k in 0..3 {
+                let mut unit = [0.0; 3];
+                unit[k] = 1.0;
+                let axis = cross(&unit, edge);
+                let p = v.map(|q| dot(&axis, &q));
+                let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+                let r = radius(&axis);
+                if lo > r || hi < -r {
+                    return false;
+                }
+            }
+        }
+        true
     }
 }
 
@@ -640,15 +718,12 @@ impl Sim<'_> {
                 // A box: prune the BVH with the oriented box, then exact SAT per triangle.
                 Some(cuboid) => {
                     let obb = Obb::new(&pose, cuboid.half_extents);
-                    let box_from_mesh = pose.inverse();
+                    let (vertices, indices) = (mesh.vertices(), mesh.indices());
                     mesh.bvh()
                         .leaves(|node| obb.overlaps(&node.aabb()))
                         .any(|id| {
-                            query::details::intersection_test_cuboid_triangle(
-                                &box_from_mesh,
-                                cuboid,
-                                &mesh.triangle(id),
-                            )
+                            let [a, b, c] = indices[id as usize].map(|i| &vertices[i as usize]);
+                            obb.intersects_triangle(a, b, c)
                         })
                 }
                 // The shape at `pose` relative to the mesh; unsupported counts as a hit.
@@ -688,8 +763,16 @@ impl Sim<'_> {
         })
     }
 
-    fn any_hit(&self, links: [(&HandLink, Pose); 2]) -> [bool; 2] {
-        links.map(|(l, p)| self.hits(l, &p).is_some())
+    /// Whether the proximal and the distal link (in that order) intersect
+    /// anything; the distal is not tested when the proximal hits (reported as
+    /// not hitting): callers need only whether either hits and whether the
+    /// proximal does.
+    fn any_hit(&self, [(proximal, p), (distal, d)]: [(&HandLink, Pose); 2]) -> [bool; 2] {
+        if self.hits(proximal, &p).is_some() {
+            [true, false]
+        } else {
+            [false, self.hits(distal, &d).is_some()]
+        }
     }
 
     /// Closes one finger: returns the flex and distal angles and why it stopped.
@@ -1157,6 +1240,54 @@ pub(crate) mod tests {
             assert!((c.point.z - h).abs() < 1e-6, "{c:?}");
             assert!((c.normal - Vector3::z()).norm() < 1e-6, "{c:?}");
         }
+    }
+
+    #[test]
+    fn box_triangle_test_agrees_with_parry() {
+        use parry3d_f64::shape::{Cuboid, Triangle};
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (mut hits, mut misses) = (0, 0);
+        for _ in 0..20_000 {
+            let half = Vector3::new(
+                rng.gen_range(0.005..0.04),
+                rng.gen_range(0.005..0.04),
+                rng.gen_range(0.005..0.04),
+            );
+            let pose = Pose::new(
+                Vector3::new(
+                    rng.gen_range(-0.02..0.02),
+                    rng.gen_range(-0.02..0.02),
+                    rng.gen_range(-0.02..0.02),
+                ),
+                Vector3::new(
+                    rng.gen_range(-3.0..3.0),
+                    rng.gen_range(-3.0..3.0),
+                    rng.gen_range(-3.0..3.0),
+                ),
+            );
+            let mut corner = || {
+                Point3::new(
+                    rng.gen_range(-0.06..0.06),
+                    rng.gen_range(-0.06..0.06),
+                    rng.gen_range(-0.06..0.06),
+                )
+            };
+            let (a, b, c) = (corner(), corner(), corner());
+            let ours = Obb::new(&pose, half).intersects_triangle(&a, &b, &c);
+            let theirs = parry3d_f64::query::details::intersection_test_cuboid_triangle(
+                &pose.inverse(),
+                &Cuboid::new(half),
+                &Triangle::new(a, b, c),
+            );
+            assert_eq!(ours, theirs, "{pose:?} {half:?} {a} {b} {c}");
+            if ours {
+                hits += 1;
+            } else {
+                misses += 1;
+            }
+        }
+        assert!(hits > 2000 && misses > 2000, "{hits} hits, {misses} misses");
     }
 
     #[test]
