@@ -203,11 +203,12 @@ pub fn run(
         }
         // Only measured joints: none before the robot's first measurement.
         if driver.status().last_seq.is_some() {
-            joints_pub.send(&JointStates {
-                trial_id: 0,
-                stamp_ns: monotonic_now_ns(),
-                joints: joints_now(&driver),
-            })?;
+            joints_pub.send(&JointStates::new(
+                0,
+                monotonic_now_ns(),
+                joints_now(&driver),
+                driver.status().commanding && executor.hand_ready(),
+            ))?;
         }
         let plan = match plans.receive_timeout(TICK) {
             Ok(Some(plan)) => plan,

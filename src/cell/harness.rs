@@ -11,7 +11,8 @@ use super::setup::{upright_pose, TrialSetup};
 use super::{CellError, StageArgs, STAGES};
 use crate::config::CellConfig;
 use crate::ipc::{
-    monotonic_now_ns, Domain, MessagePublisher, MessageSubscriber, Stage, TrialRequest, TrialResult,
+    monotonic_now_ns, Domain, JointStates, MessagePublisher, MessageSubscriber, Stage,
+    TrialRequest, TrialResult,
 };
 use crate::mesh::procedural::{generate, instance_seed, Category};
 use crate::trial::{ObjectRef, Placement};
@@ -267,7 +268,34 @@ impl Cell {
                 restarts: 0,
             });
         }
-        Ok(())
+        self.wait_devices_ready(STARTUP_TIMEOUT)
+    }
+
+    /// Waits until the executor reports its devices ready (the arm in command mode,
+    /// the hand initialised), so that no trial waits for them.
+    pub fn wait_devices_ready(&mut self, timeout: Duration) -> Result<(), CellError> {
+        let operator = self
+            .operator
+            .as_ref()
+            .ok_or_else(|| CellError::Invalid("the operator node is not running".into()))?;
+        let joints = operator._stage.subscriber::<JointStates>()?;
+        let deadline = Instant::now() + timeout;
+        let mut last = None;
+        while Instant::now() < deadline {
+            if let Some(j) = joints.receive_timeout(super::TICK)? {
+                if j.devices_ready == 1 {
+                    return Ok(());
+                }
+                last = Some(j);
+            }
+        }
+        Err(CellError::Timeout {
+            what: match last {
+                None => "the executor's joint states (is the arm answering?)".to_string(),
+                Some(_) => "the arm in command mode with the hand initialised".to_string(),
+            },
+            waited_s: timeout.as_secs_f64(),
+        })
     }
 
     fn stage_args(&self, stage: &str) -> Vec<String> {

@@ -721,8 +721,30 @@ pub struct JointStates {
     pub stamp_ns: u64,
     /// The angles.
     pub joints: JointState,
+    /// 1 when the executor can start a grasp at once: the arm in command mode and
+    /// the hand initialised; else 0.
+    pub devices_ready: u32,
+    reserved: u32,
 }
 message!(JointStates, Topic::JointStates);
+
+impl JointStates {
+    /// Joint states measured at `stamp_ns`.
+    pub fn new(
+        trial_id: u64,
+        stamp_ns: u64,
+        joints: JointState,
+        devices_ready: bool,
+    ) -> JointStates {
+        JointStates {
+            trial_id,
+            stamp_ns,
+            joints,
+            devices_ready: u32::from(devices_ready),
+            reserved: 0,
+        }
+    }
+}
 
 /// Executor -> log: phase, error and joints of the execution.
 #[repr(C)]
