@@ -289,6 +289,16 @@ fn cross_hammer_to_knife_fills_table_1() {
         for fit in t["fits"].as_array().unwrap() {
             assert!(hammers.contains(&fit["model"].as_str().unwrap()));
         }
+        // A target no hammer registered to is skipped with every hammer's reason.
+        for skip in t["skipped"].as_array().unwrap() {
+            let reason = skip["reason"].as_str().unwrap();
+            if reason.starts_with("registration: no model registered") {
+                assert_eq!(t["unregistered"].as_array().unwrap().len(), 4, "{t}");
+                for h in hammers {
+                    assert!(reason.contains(&format!("{h}: ")), "{reason}");
+                }
+            }
+        }
         for r in t["runs"].as_array().unwrap() {
             check_run(r, tolerance);
         }

@@ -28,7 +28,7 @@ pub trait Registrar: Sync {
     /// The fits of every training model except the one named `exclude` (the held-out
     /// model of leave-one-out) to `target_base` (base frame), with randomness from
     /// `seed`; models that fail to register are left out. `Err` describes a failure of
-    /// the whole registration.
+    /// the whole registration (when no model registers, each model's reason).
     fn fits(
         &self,
         target_base: &PointCloud,
@@ -371,6 +371,17 @@ pub fn run_target(
         }
     };
     report.view_points = cloud.len();
+    // The training models (but the held-out one) without a fit.
+    let unregistered = |fits: &[ModelFit]| -> Vec<String> {
+        train
+            .file
+            .models
+            .iter()
+            .map(|m| &m.name)
+            .filter(|n| Some(n.as_str()) != exclude && !fits.iter().any(|f| &f.name == *n))
+            .cloned()
+            .collect()
+    };
     let registered = registrar.fits(&cloud, exclude, register_seed);
     steps.tick();
     let fits = match registered {
@@ -380,6 +391,7 @@ pub fn run_target(
         }
         Ok(f) => f,
         Err(e) => {
+            report.unregistered = unregistered(&[]);
             skip_all(&mut report, format!("registration: {e}"));
             return Ok(report);
         }
@@ -400,14 +412,7 @@ pub fn run_target(
             }
         })
         .collect();
-    report.unregistered = train
-        .file
-        .models
-        .iter()
-        .map(|m| &m.name)
-        .filter(|n| Some(n.as_str()) != exclude && !fits.iter().any(|f| &f.name == *n))
-        .cloned()
-        .collect();
+    report.unregistered = unregistered(&fits);
 
     let path = target.db.dir.join(&entry.mesh);
     let object = GraspObject::new(mesh, &path)

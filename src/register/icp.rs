@@ -12,7 +12,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum IcpMetric {
-    /// Distance along the model point's normal.
+    /// Distance along the model point's normal (optionally with a small
+    /// point-to-point term: [`IcpSettings::point_weight`]).
     #[default]
     PointToPlane,
     /// Euclidean distance between the paired points.
@@ -28,6 +29,13 @@ pub struct IcpSettings {
     pub max_distance_m: f64,
     /// The metric.
     pub metric: IcpMetric,
+    /// Point-to-plane only: weight of a point-to-point term relative to the plane
+    /// term (0: none). The plane term alone leaves the directions a surface hardly
+    /// constrains (a flat knife's slide along its length) to a few rim points, and
+    /// between unlike shapes those can pull the pose away without bound; a small
+    /// point term anchors them, at the price of a bias of a fraction of the model's
+    /// sample spacing.
+    pub point_weight: f64,
     /// Stop when a step moves less than this (m) ...
     pub converge_translation_m: f64,
     /// ... and rotates less than this (rad).
@@ -118,7 +126,7 @@ pub fn icp(
             break;
         }
         let step = match settings.metric {
-            IcpMetric::PointToPlane => point_to_plane_step(&src, &dst, &nrm),
+            IcpMetric::PointToPlane => point_to_plane_step(&src, &dst, &nrm, settings.point_weight),
             IcpMetric::PointToPoint => None,
         }
         .or_else(|| rigid_fit(&src, &dst));
@@ -135,27 +143,45 @@ pub fn icp(
     result
 }
 
-/// One linearised point-to-plane step: the small motion `(w, t)` minimising
-/// `sum ((p + w x p + t - q) . n)^2`; `None` when the system is singular (e.g. all
-/// pairs on one plane).
+/// One linearised step of regularised point-to-plane: the small motion `(w, t)`
+/// about the source centroid `c` minimising
+/// `sum ((r + w x (p - c) + t) . n)^2 + point_weight * |r + w x (p - c) + t|^2`
+/// with `r = p - q`; `None` when the system is singular (e.g. all pairs on one
+/// plane, without the point term).
 fn point_to_plane_step(
     src: &[Point3<f64>],
     dst: &[Point3<f64>],
     normals: &[Vector3<f64>],
+    point_weight: f64,
 ) -> Option<Pose> {
-    // Centre on the source centroid for conditioning.
+    // Centre on the source centroid for conditioning (the point term's rotation and
+    // translation then decouple: the offsets sum to zero).
     let c = src.iter().map(|p| p.coords).sum::<Vector3<f64>>() / src.len() as f64;
     let mut ata = Matrix6::<f64>::zeros();
     let mut atb = Vector6::<f64>::zeros();
+    let mut spread = nalgebra::Matrix3::<f64>::zeros();
+    let (mut torque, mut force) = (Vector3::zeros(), Vector3::zeros());
     for ((p, q), n) in src.iter().zip(dst).zip(normals) {
         let pc = p.coords - c;
         let a = pc.cross(n);
         let row = Vector6::new(a.x, a.y, a.z, n.x, n.y, n.z);
-        let r = (p - q).dot(n);
+        let r = p - q;
         ata += row * row.transpose();
-        atb -= row * r;
+        atb -= row * r.dot(n);
+        // Point term: residual r - [pc]x w + t.
+        spread += nalgebra::Matrix3::identity() * pc.norm_squared() - pc * pc.transpose();
+        torque += pc.cross(&r);
+        force += r;
     }
-    // Reject near-singular systems (a plane or a cylinder leaves a free direction).
+    let lambda = point_weight;
+    let mut rotation_block = ata.fixed_view_mut::<3, 3>(0, 0);
+    rotation_block += spread * lambda;
+    let mut translation_block = ata.fixed_view_mut::<3, 3>(3, 3);
+    translation_block += nalgebra::Matrix3::identity() * (lambda * src.len() as f64);
+    let mut b_rotation = atb.fixed_rows_mut::<3>(0);
+    b_rotation -= torque * lambda;
+    let mut b_translation = atb.fixed_rows_mut::<3>(3);
+    b_translation -= force * lambda;
     let eig = ata.symmetric_eigenvalues();
     if eig.min() <= 1e-9 * eig.max().max(1e-300) {
         return None;
@@ -208,6 +234,7 @@ mod tests {
             max_iterations,
             max_distance_m: 0.03,
             metric,
+            point_weight: 0.0,
             converge_translation_m: 1e-7,
             converge_rotation_rad: 1e-7,
             min_normal_cos: 0.0,

@@ -166,6 +166,12 @@ pub struct RegisterParams {
     pub seen_through_margin_m: f64,
     /// ICP metric.
     pub icp_metric: IcpMetric,
+    /// Point-to-plane coarse ICP: weight of its point-to-point term
+    /// ([`icp::IcpSettings::point_weight`]), which keeps flat objects from sliding
+    /// off unlike models.
+    pub icp_coarse_point_weight: f64,
+    /// Point-to-plane exact ICP: weight of its point-to-point term.
+    pub icp_point_weight: f64,
     /// Target points used to score hypotheses and polish candidates.
     pub score_points: usize,
     /// Of those, the points used in the yaw sweep (a spread subsample).
@@ -227,6 +233,8 @@ impl Default for RegisterParams {
             icp_min_normal_cos: 0.5,
             seen_through_margin_m: 0.005,
             icp_metric: IcpMetric::PointToPlane,
+            icp_coarse_point_weight: 0.05,
+            icp_point_weight: 0.0,
             score_points: 400,
             sweep_points: 200,
             unseen_weight: 1.0,
@@ -294,12 +302,19 @@ impl RegisterParams {
                 });
             }
         }
-        if !(self.unseen_weight >= 0.0 && self.unseen_weight.is_finite()) {
-            return Err(RegisterError::BadParameter {
-                name: "unseen_weight",
-                value: self.unseen_weight,
-                problem: "must be a non-negative number",
-            });
+        let non_negative = [
+            ("unseen_weight", self.unseen_weight),
+            ("icp_coarse_point_weight", self.icp_coarse_point_weight),
+            ("icp_point_weight", self.icp_point_weight),
+        ];
+        for (name, value) in non_negative {
+            if !(value >= 0.0 && value.is_finite()) {
+                return Err(RegisterError::BadParameter {
+                    name,
+                    value,
+                    problem: "must be a non-negative number",
+                });
+            }
         }
         if Vector3::from(self.up).try_normalize(1e-9).is_none() {
             return Err(RegisterError::BadParameter {
@@ -1110,6 +1125,7 @@ fn register_one(
         max_iterations: iterations,
         max_distance_m: 2.0 * params.icp_max_distance_m,
         metric: params.icp_metric,
+        point_weight: params.icp_coarse_point_weight,
         converge_translation_m: 1e-4,
         converge_rotation_rad: 1e-3,
         min_normal_cos: params.icp_min_normal_cos as f32,
@@ -1186,6 +1202,7 @@ fn register_one(
         max_iterations: params.icp_iterations,
         max_distance_m: params.icp_max_distance_m,
         metric: params.icp_metric,
+        point_weight: params.icp_point_weight,
         converge_translation_m: 5e-5,
         converge_rotation_rad: 5e-4,
         min_normal_cos: params.icp_min_normal_cos as f32,
