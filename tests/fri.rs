@@ -126,6 +126,17 @@ fn driver_reaches_command_mode_and_tracks_a_trajectory() {
 }
 
 #[test]
+fn shutdown_releases_the_robot_to_monitor_mode_on_request() {
+    let (driver, sim) = rig(lenient_sim([0.2; 7]), 0.5);
+    driver.wait_until_commanding(20.0).unwrap();
+    driver.shutdown(5.0).unwrap();
+    let summary = sim.stop().unwrap();
+    assert_eq!(summary.state, FriState::Monitor);
+    assert_eq!(summary.drop_reason, Some(DropReason::Released));
+    assert_eq!(summary.counters.drops_to_monitor, 1);
+}
+
+#[test]
 fn withheld_answers_drop_the_robot_to_monitor_and_the_driver_reports_it() {
     let (driver, sim) = rig(lenient_sim([0.0; 7]), 0.5);
     let status = driver.wait_until_commanding(20.0).unwrap();

@@ -27,6 +27,8 @@
 //!   position is at or beyond a joint limit, when a commanded step implies a speed at
 //!   or above a joint's velocity limit, or when `cmdFlags` change in CMD. The KRL
 //!   program does not call `friStart` again unless [`FriSimulator::request_start`].
+//! - The KRL program calls `friStop` when a command sets [`RELEASE_BIT`] of
+//!   `boolData` (the PC is done), and does not call `friStart` while it is set.
 //! - Not simulated (sent as zeros): Cartesian poses, torques, Jacobian, mass matrix,
 //!   gravity. Drive temperatures are a constant ambient value.
 
@@ -35,7 +37,7 @@ use crate::hw::fri::datagram::{
     seq_ahead, CmdFlags, CommandDatagram, ControlMode, DatagramError, FriState, InterfaceState,
     LinkStats, MeasurementDatagram, Quality, RobotData, RobotState,
 };
-use crate::hw::fri::JOINTS;
+use crate::hw::fri::{JOINTS, RELEASE_BIT};
 use serde::Serialize;
 use std::collections::VecDeque;
 use std::fmt;
@@ -173,7 +175,8 @@ pub struct SimConfig {
     /// Whether the KRL program calls `friStart` at all (else the robot stays in MON).
     pub auto_start: bool,
     /// Whether the KRL program calls `friStart` again after the link dropped the
-    /// robot to monitor mode (a loop around `friStart`, as cell programs have): it
+    /// robot to monitor mode, or after the PC released it ([`RELEASE_BIT`]) and a
+    /// PC clears the bit again (a loop around `friStart`, as cell programs have): it
     /// is back in command mode once quality has been PERFECT for
     /// `start_after_perfect_cycles` cycles. `friStop` and limit violations still end
     /// command mode for good.
@@ -327,6 +330,9 @@ pub enum DropReason {
     },
     /// The KRL program called `friStop`.
     FriStop,
+    /// The KRL program called `friStop` because the PC released the robot
+    /// ([`RELEASE_BIT`] in its commands): the normal end of a session.
+    Released,
 }
 
 impl fmt::Display for DropReason {
@@ -361,6 +367,7 @@ impl fmt::Display for DropReason {
                 "cmdFlags changed in command mode from {latched:#x} to {received:#x}"
             ),
             DropReason::FriStop => f.write_str("friStop"),
+            DropReason::Released => f.write_str("friStop on the PC's release request"),
         }
     }
 }
@@ -486,6 +493,8 @@ pub struct FriSimulator {
     last_monitor_flags: CmdFlags,
     perfect_cycles: u32,
     start_requested: bool,
+    /// The last command carried [`RELEASE_BIT`].
+    release_requested: bool,
     drop_reason: Option<DropReason>,
     events: VecDeque<SimEvent>,
     counters: SimCounters,
@@ -521,6 +530,7 @@ impl FriSimulator {
             last_monitor_flags: CmdFlags::NONE,
             perfect_cycles: 0,
             start_requested: config.auto_start,
+            release_requested: false,
             drop_reason: None,
             events: VecDeque::new(),
             counters: SimCounters::default(),
@@ -632,6 +642,10 @@ impl FriSimulator {
 
     fn push_event(&mut self, event: SimEvent) {
         match &event {
+            SimEvent::DroppedToMonitor {
+                reason: DropReason::Released,
+                at_s,
+            } => tracing::info!("FRI sim: released to monitor at {at_s:.3} s"),
             SimEvent::DroppedToMonitor { reason, at_s } => {
                 tracing::warn!("FRI sim: dropped to monitor at {at_s:.3} s: {reason}")
             }
@@ -778,6 +792,7 @@ impl FriSimulator {
                     0
                 };
                 if self.start_requested
+                    && !self.release_requested
                     && self.perfect_cycles >= self.config.start_after_perfect_cycles
                 {
                     self.start_requested = false;
@@ -804,7 +819,12 @@ impl FriSimulator {
         self.last_cmd_rad = self.msr_rad;
         self.last_applied = None;
         self.perfect_cycles = 0;
-        if self.config.restart_after_drop && matches!(reason, DropReason::LinkQuality { .. }) {
+        if self.config.restart_after_drop
+            && matches!(
+                reason,
+                DropReason::LinkQuality { .. } | DropReason::Released
+            )
+        {
             self.start_requested = true;
         }
         self.drop_reason = Some(reason);
@@ -880,6 +900,12 @@ impl FriSimulator {
 
     fn apply(&mut self, command: &CommandDatagram, now: Duration) {
         let refl = command.refl_seq_count;
+        // The KRL program's loop: friStop while the PC releases the robot.
+        self.release_requested = command.krl.bools & RELEASE_BIT != 0;
+        if self.release_requested && self.state == FriState::Command {
+            self.drop_to_monitor(DropReason::Released, now);
+            return;
+        }
         match self.state {
             FriState::Monitor => {
                 self.last_monitor_flags = command.cmd_flags;
@@ -1449,6 +1475,40 @@ mod tests {
         sim.request_stop(t);
         run(&mut sim, &mut t, 300, |_, _| Some(None));
         assert_eq!(sim.state(), FriState::Monitor);
+    }
+
+    #[test]
+    fn a_release_request_stops_command_mode_until_it_clears() {
+        let mut sim = FriSimulator::new(SimConfig {
+            restart_after_drop: true,
+            ..Default::default()
+        })
+        .unwrap();
+        let mut t = Duration::from_secs(3);
+        run(&mut sim, &mut t, 150, |_, _| Some(None));
+        assert_eq!(sim.state(), FriState::Command);
+        sim.take_events();
+        // Mirroring answers with the release bit: friStop at the first, and no
+        // friStart while the bit stays set, however good the link.
+        let released = |sim: &mut FriSimulator, t: &mut Duration, cycles: usize| {
+            for _ in 0..cycles {
+                let m = sim.poll(*t).unwrap();
+                let mut command =
+                    CommandDatagram::decode(&answer(&m, m.send_seq_count, None)).unwrap();
+                command.krl.bools = RELEASE_BIT;
+                sim.receive(&command.encode(), *t + Duration::from_micros(100));
+                *t += MS;
+            }
+        };
+        released(&mut sim, &mut t, 1);
+        assert_eq!(sim.state(), FriState::Monitor);
+        assert_eq!(sim.drop_reason(), Some(DropReason::Released));
+        released(&mut sim, &mut t, 300);
+        assert_eq!(sim.state(), FriState::Monitor);
+        assert_eq!(sim.counters().drops_to_monitor, 1);
+        // A new session (bit clear): the KRL loop starts command mode again.
+        run(&mut sim, &mut t, 150, |_, _| Some(None));
+        assert_eq!(sim.state(), FriState::Command);
     }
 
     #[test]

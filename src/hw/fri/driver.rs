@@ -36,10 +36,13 @@
 //!   or the quality falls below the minimum, the motion is aborted and the driver
 //!   mirrors the robot, which has already stopped the arm.
 //! - Dropping the [`FriDriver`] stops answering; the robot then drops to monitor mode
-//!   within a few cycles and holds. [`FriDriver::shutdown`] first stops any motion.
+//!   within a few cycles and holds. [`FriDriver::shutdown`] first stops any motion,
+//!   then releases the robot: its commands set [`RELEASE_BIT`] of `boolData`
+//!   (`$FRI_FRM_BOOL[1]` in KRL), and the cell's KRL program answers with `friStop`,
+//!   so the robot leaves command mode on request instead of by a failing link.
 
 use super::datagram::{
-    seq_ahead, CmdFlags, CommandDatagram, ControlMode, DatagramError, FriState, LinkStats,
+    seq_ahead, CmdFlags, CommandDatagram, ControlMode, DatagramError, FriState, KrlData, LinkStats,
     MeasurementDatagram, Quality,
 };
 use super::{DEFAULT_PORT, JOINTS};
@@ -52,6 +55,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::Duration;
+
+/// Bit of the command's KRL `boolData` (`$FRI_FRM_BOOL[1]`) by which the PC releases
+/// the robot: the cell's KRL program calls `friStop` while it is set, and `friStart`
+/// again (once quality is PERFECT) only when it is clear. graspcell's convention,
+/// not part of FRI.
+pub const RELEASE_BIT: u16 = 1 << 0;
 
 /// Most recent events kept; older ones are counted and dropped.
 const EVENT_CAPACITY: usize = 4096;
@@ -167,6 +176,11 @@ pub enum FriEvent {
         from: FriState,
         /// After.
         to: FriState,
+        /// `sendSeqCount` of the measurement that showed it.
+        seq: u16,
+    },
+    /// The robot left command mode as the driver asked ([`RELEASE_BIT`]).
+    Released {
         /// `sendSeqCount` of the measurement that showed it.
         seq: u16,
     },
@@ -397,6 +411,8 @@ pub struct DriverCore {
     /// Outcome of the most recent finished motion.
     outcome: Option<(u64, Result<(), FriError>)>,
     withhold: bool,
+    /// Commands ask the KRL program to leave command mode ([`RELEASE_BIT`]).
+    release: bool,
     events: VecDeque<FriEvent>,
     counters: DriverCounters,
 }
@@ -417,6 +433,7 @@ impl DriverCore {
             next_id: 1,
             outcome: None,
             withhold: false,
+            release: false,
             events: VecDeque::new(),
             counters: DriverCounters::default(),
         })
@@ -550,7 +567,9 @@ impl DriverCore {
                 to: state,
                 seq,
             });
-            if prev_state == FriState::Command {
+            if prev_state == FriState::Command && self.release {
+                self.push(FriEvent::Released { seq });
+            } else if prev_state == FriState::Command {
                 let during_motion = !matches!(self.motion, Motion::Mirror | Motion::Hold(_));
                 self.push(FriEvent::DroppedToMonitor {
                     state,
@@ -598,6 +617,10 @@ impl DriverCore {
             refl_seq_count: seq,
             cmd_flags: CmdFlags::JNT_POS,
             jnt_pos: target.map(|v| v as f32),
+            krl: KrlData {
+                bools: if self.release { RELEASE_BIT } else { 0 },
+                ..KrlData::default()
+            },
             ..Default::default()
         };
         if self.withhold {
@@ -753,6 +776,23 @@ impl DriverCore {
             Some((done, _)) if *done > id => Some(Ok(())),
             _ => None,
         }
+    }
+
+    /// Stops any motion and asks the robot to leave command mode ([`RELEASE_BIT`] in
+    /// every command from now on).
+    pub fn release(&mut self) {
+        self.stop();
+        self.release = true;
+    }
+
+    /// Whether the robot is released: the driver asked for it and the robot is out
+    /// of command mode, or the link is gone (nothing left to release).
+    pub fn is_released(&self) -> bool {
+        self.release
+            && (self.late
+                || self
+                    .last
+                    .is_none_or(|m| m.interface.state != FriState::Command))
     }
 
     /// Withholds (`true`) or resumes answers: fault injection for tests.
@@ -981,21 +1021,38 @@ impl FriDriver {
         })
     }
 
-    /// Stops any motion, waits (up to `timeout_s`) for the arm to come to rest, then
-    /// stops answering.
+    /// Stops any motion, waits (up to `timeout_s`) for the arm to come to rest,
+    /// releases the robot and waits (up to `timeout_s` again) for it to leave
+    /// command mode, then stops answering. A KRL program that ignores
+    /// [`RELEASE_BIT`] makes this a [`FriError::Timeout`]; the robot then drops to
+    /// monitor mode as answers stop, and holds.
     pub fn shutdown(mut self, timeout_s: f64) -> Result<(), FriError> {
         self.stop();
         let rested = self
             .shared
             .wait(timeout_s, |core| (!core.is_moving()).then_some(()));
+        let released = match &rested {
+            Ok(Some(())) => {
+                self.shared.lock().release();
+                self.shared
+                    .wait(timeout_s, |core| core.is_released().then_some(()))
+            }
+            other => other.clone(),
+        };
         self.end_thread();
-        match rested {
-            Ok(Some(())) | Err(FriError::ShutDown) => Ok(()),
-            Ok(None) => Err(FriError::Timeout {
+        match (rested, released) {
+            (Ok(None), _) => Err(FriError::Timeout {
                 what: "the arm to come to rest before shutdown".into(),
                 timeout_s,
             }),
-            Err(e) => Err(e),
+            (_, Ok(None)) => Err(FriError::Timeout {
+                what: "the robot to leave command mode (a KRL program that calls friStop \
+                       on $FRI_FRM_BOOL[1])"
+                    .into(),
+                timeout_s,
+            }),
+            (_, Ok(Some(()))) | (_, Err(FriError::ShutDown)) => Ok(()),
+            (_, Err(e)) => Err(e),
         }
     }
 
