@@ -10,7 +10,8 @@
 //!
 //! The camera mount is the hand–eye calibration result when there is a valid one
 //! ([`crate::calib::current_base_from_camera`]), else the nominal mount of the cell
-//! configuration. Model sets are prepared (sampled, FPFH) once per category and
+//! configuration; with the simulated camera it is always the configured mount (the
+//! one the simulator renders from). Model sets are prepared (sampled, FPFH) once per category and
 //! kept. The random stream of registration is the trial setup's `perception_seed`
 //! when the simulated world has a setup file, else the trial id: every trial can be
 //! reproduced.
@@ -35,7 +36,8 @@ use std::path::PathBuf;
 pub struct PerceiveOptions {
     /// Directory of the category databases (`<dir>/<category>/`).
     pub db_dir: PathBuf,
-    /// The hand–eye calibration result (used when present and valid).
+    /// The hand–eye calibration result (used when present and valid, and the camera
+    /// is not simulated).
     pub hand_eye: PathBuf,
     /// Directory of per-trial setup files (for the trial's perception seed).
     pub run_dir: PathBuf,
@@ -147,8 +149,14 @@ pub fn run(
     domain: &Domain,
     options: &PerceiveOptions,
 ) -> Result<(), CellError> {
-    let mount = crate::calib::current_base_from_camera(config, &options.hand_eye);
-    let base_from_camera = mount.base_from_camera;
+    // The simulated camera renders from the configured mount, so that is its true
+    // mount; a calibration result (of a real camera) applies to real clouds only.
+    let base_from_camera = if config.camera.backend == "sim" {
+        tracing::info!("simulated camera: its mount is the configured camera.base_from_camera");
+        config.base_from_camera()
+    } else {
+        crate::calib::current_base_from_camera(config, &options.hand_eye).base_from_camera
+    };
     let segment = SegmentParams::for_cell(config);
     let mut sets = ModelSets {
         db_dir: options.db_dir.clone(),
