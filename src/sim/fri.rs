@@ -1449,8 +1449,8 @@ mod tests {
         assert_eq!(sim.state(), FriState::Command);
     }
 
-    #[test]
-    fn a_krl_loop_restarts_command_mode_after_a_link_drop_only() {
+    /// A simulator whose KRL program loops around `friStart`, in command mode.
+    fn looping_krl_in_command_mode() -> (FriSimulator, Duration) {
         let mut sim = FriSimulator::new(SimConfig {
             restart_after_drop: true,
             ..Default::default()
@@ -1459,6 +1459,12 @@ mod tests {
         let mut t = Duration::from_secs(3);
         run(&mut sim, &mut t, 150, |_, _| Some(None));
         assert_eq!(sim.state(), FriState::Command);
+        (sim, t)
+    }
+
+    #[test]
+    fn a_krl_loop_restarts_command_mode_after_a_link_drop_only() {
+        let (mut sim, mut t) = looping_krl_in_command_mode();
         // Five answers missed: the link drops the robot to monitor mode ...
         run(&mut sim, &mut t, 6, |_, _| None);
         assert_eq!(sim.state(), FriState::Monitor);
@@ -1479,14 +1485,7 @@ mod tests {
 
     #[test]
     fn a_release_request_stops_command_mode_until_it_clears() {
-        let mut sim = FriSimulator::new(SimConfig {
-            restart_after_drop: true,
-            ..Default::default()
-        })
-        .unwrap();
-        let mut t = Duration::from_secs(3);
-        run(&mut sim, &mut t, 150, |_, _| Some(None));
-        assert_eq!(sim.state(), FriState::Command);
+        let (mut sim, mut t) = looping_krl_in_command_mode();
         sim.take_events();
         // Mirroring answers with the release bit: friStop at the first, and no
         // friStart while the bit stays set, however good the link.
