@@ -288,10 +288,26 @@ impl Cell {
                 }
                 last = Some(j);
             }
+            for process in self.stages.iter_mut().chain(self.sims.iter_mut()) {
+                if let Ok(Some(status)) = process.child.try_wait() {
+                    return Err(CellError::Process {
+                        name: process.name.clone(),
+                        detail: format!("exited while the devices came up ({status})"),
+                    });
+                }
+            }
         }
         Err(CellError::Timeout {
             what: match last {
-                None => "the executor's joint states (is the arm answering?)".to_string(),
+                None => format!(
+                    "the executor's joint states: no robot measurement reached its FRI driver at {} ({})",
+                    self.fri_addr,
+                    if self.options.simulated_devices {
+                        "the arm simulator runs and sends there"
+                    } else {
+                        "is the robot's FRI configured to send there?"
+                    }
+                ),
                 Some(_) => "the arm in command mode with the hand initialised".to_string(),
             },
             waited_s: timeout.as_secs_f64(),
