@@ -19,14 +19,29 @@ fn config() -> CellConfig {
     CellConfig::load(&root().join("robot/cell.toml")).unwrap()
 }
 
+/// Runs a `OnceLock` initialiser on a rayon pool of its own. On the global pool it
+/// could deadlock: the accuracy test's trials run on the global workers and wait
+/// for the lock, so the initialiser's parallel work would wait for them in turn.
+/// (The accuracy test also builds them before its trials start: a global worker
+/// must never be the one that initialises.)
+fn on_own_pool<T: Send>(init: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap()
+        .install(init)
+}
+
 fn mug_db() -> &'static CategoryDb {
     static DB: OnceLock<CategoryDb> = OnceLock::new();
-    DB.get_or_init(|| CategoryDb::load(&root().join("db/mug")).unwrap())
+    DB.get_or_init(|| on_own_pool(|| CategoryDb::load(&root().join("db/mug")).unwrap()))
 }
 
 fn mug_models() -> &'static ModelSet {
     static SET: OnceLock<ModelSet> = OnceLock::new();
-    SET.get_or_init(|| ModelSet::from_category(mug_db(), &RegisterParams::default()).unwrap())
+    SET.get_or_init(|| {
+        on_own_pool(|| ModelSet::from_category(mug_db(), &RegisterParams::default()).unwrap())
+    })
 }
 
 /// Whether mug `index` of the database is a surface of revolution about its z axis
@@ -37,23 +52,26 @@ fn symmetric_about_z(index: usize) -> bool {
     use graspcell::cloud::kdtree::KdIndex;
     static SYMMETRIC: OnceLock<Vec<bool>> = OnceLock::new();
     SYMMETRIC.get_or_init(|| {
-        let db = mug_db();
-        (0..db.meshes.len())
-            .map(|i| {
-                let dense = graspcell::cloud::sample::sample_surface(&db.meshes[i], 40_000, 5)
-                    .unwrap()
-                    .points;
-                let index = KdIndex::new(&dense);
-                let turn = nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::z_axis(), 1.0);
-                let far = graspcell::cloud::sample::sample_surface(&db.meshes[i], 2000, 6)
-                    .unwrap()
-                    .points
-                    .iter()
-                    .filter(|p| index.nearest(&(turn * *p)).unwrap().1.sqrt() > 0.002)
-                    .count();
-                far < 20
-            })
-            .collect()
+        on_own_pool(|| {
+            let db = mug_db();
+            (0..db.meshes.len())
+                .map(|i| {
+                    let dense = graspcell::cloud::sample::sample_surface(&db.meshes[i], 40_000, 5)
+                        .unwrap()
+                        .points;
+                    let index = KdIndex::new(&dense);
+                    let turn =
+                        nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::z_axis(), 1.0);
+                    let far = graspcell::cloud::sample::sample_surface(&db.meshes[i], 2000, 6)
+                        .unwrap()
+                        .points
+                        .iter()
+                        .filter(|p| index.nearest(&(turn * *p)).unwrap().1.sqrt() > 0.002)
+                        .count();
+                    far < 20
+                })
+                .collect()
+        })
     })[index]
 }
 
@@ -210,6 +228,10 @@ fn accuracy_trial(trial: u64) -> (f64, f64, bool) {
 #[test]
 fn accuracy_100_trials_handle_visible() {
     use rayon::prelude::*;
+    // Built here, before the trials run on the global pool's workers: a worker that
+    // built them would, while waiting for that work, take up another trial that
+    // waits for the very lock the worker holds.
+    let _ = (mug_models(), symmetric_about_z(0));
     let results: Vec<(u64, (f64, f64, bool))> = (0..100u64)
         .into_par_iter()
         .map(|t| (t, accuracy_trial(t)))
