@@ -412,23 +412,32 @@ pub fn loo(config: &Path, args: LooArgs) -> anyhow::Result<ExitCode> {
     let report = leave_one_out(&setup, &db, &e.tasks, &kernels, &registrar, Some(&bar));
     bar.finish_and_clear();
     let report = report?;
+    let title = format!(
+        "LEAVE-ONE-OUT {} ({} VIEWS, SEED {})",
+        report.category.to_uppercase(),
+        report.view.name().to_uppercase(),
+        report.seed
+    );
+    chart_and_print(e, &report, &report.rows, &title, started, loo_text)
+}
+
+/// Draws the verdict chart titled `title` (with `--png`), then prints `report` with
+/// the wall-clock time since `started`: JSON, or `text`.
+fn chart_and_print<T: serde::Serialize>(
+    e: &ExperimentArgs,
+    report: &T,
+    rows: &[TallyRow],
+    title: &str,
+    started: Instant,
+    text: impl FnOnce(&T, f64, Option<&Path>) -> String,
+) -> anyhow::Result<ExitCode> {
     let seconds = started.elapsed().as_secs_f64();
     if let Some(png) = &e.png {
-        let title = format!(
-            "LEAVE-ONE-OUT {} ({} VIEWS, SEED {})",
-            report.category.to_uppercase(),
-            report.view.name().to_uppercase(),
-            report.seed
-        );
-        write_verdict_chart(png, &title, &report.rows)
-            .with_context(|| format!("{}", png.display()))?;
+        write_verdict_chart(png, title, rows).with_context(|| format!("{}", png.display()))?;
     }
-    let out = Timed {
-        report: &report,
-        seconds,
-    };
+    let out = Timed { report, seconds };
     emit(e.json, &out, |o| {
-        loo_text(o.report, o.seconds, e.png.as_deref())
+        text(o.report, o.seconds, e.png.as_deref())
     })?;
     Ok(ExitCode::SUCCESS)
 }
@@ -500,25 +509,13 @@ pub fn cross(config: &Path, args: CrossArgs) -> anyhow::Result<ExitCode> {
     );
     bar.finish_and_clear();
     let report = report?;
-    let seconds = started.elapsed().as_secs_f64();
-    if let Some(png) = &e.png {
-        let title = format!(
-            "CROSS-CATEGORY {} TO {} (SEED {})",
-            args.train.to_uppercase(),
-            args.test.to_uppercase(),
-            report.seed
-        );
-        write_verdict_chart(png, &title, &report.rows)
-            .with_context(|| format!("{}", png.display()))?;
-    }
-    let out = Timed {
-        report: &report,
-        seconds,
-    };
-    emit(e.json, &out, |o| {
-        cross_text(o.report, o.seconds, e.png.as_deref())
-    })?;
-    Ok(ExitCode::SUCCESS)
+    let title = format!(
+        "CROSS-CATEGORY {} TO {} (SEED {})",
+        args.train.to_uppercase(),
+        args.test.to_uppercase(),
+        report.seed
+    );
+    chart_and_print(e, &report, &report.rows, &title, started, cross_text)
 }
 
 fn cross_text(r: &CrossReport, seconds: f64, png: Option<&Path>) -> String {
