@@ -1,6 +1,7 @@
 //! `cell plan` end to end over fits and grasps files, and the errors of bad input:
 //! NaN in the fits, a task without grasps, an empty database, unknown models.
 
+use crate::common::{cell as cell_bin, config_path, temp_dir};
 use clap::Parser;
 use graspcell::cli::{run, Cli};
 use graspcell::geometry::pose_from_params;
@@ -8,26 +9,6 @@ use graspcell::plan::input::{read_fits, read_grasps, FitJson, FitsFile, GraspJso
 use graspcell::plan::synthetic::{synthetic_problem, SyntheticSpec};
 use graspcell::plan::{plan, ExampleGrasp, Kernel, ModelFit, PlanError, PlanOptions};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-/// A fresh directory for one test; the test removes it.
-fn temp_dir(name: &str) -> PathBuf {
-    static COUNTER: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "graspcell-plan-{name}-{}-{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::SeqCst)
-    ));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn config() -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("robot/cell.toml")
-        .to_string_lossy()
-        .into_owned()
-}
 
 fn problem() -> (Vec<ModelFit>, Vec<ExampleGrasp>) {
     synthetic_problem(&SyntheticSpec {
@@ -56,7 +37,7 @@ fn write_files(dir: &Path, fits: &[ModelFit], grasps: &[ExampleGrasp]) -> (PathB
 }
 
 fn cell_plan(fits: &Path, grasps: &Path, task: &str, extra: &[&str]) -> anyhow::Result<()> {
-    let config = config();
+    let config = config_path();
     let mut argv = vec![
         "cell",
         "--config",
@@ -75,7 +56,7 @@ fn cell_plan(fits: &Path, grasps: &Path, task: &str, extra: &[&str]) -> anyhow::
 
 #[test]
 fn files_round_trip_and_plan_the_same() {
-    let dir = temp_dir("round-trip");
+    let dir = temp_dir("plan", "round-trip");
     let (fits, grasps) = problem();
     let (f, g) = write_files(&dir, &fits, &grasps);
     let fits_back = read_fits(&f).unwrap();
@@ -113,7 +94,7 @@ fn files_round_trip_and_plan_the_same() {
 
 #[test]
 fn cli_plans_with_each_kernel_and_the_robot() {
-    let dir = temp_dir("cli");
+    let dir = temp_dir("plan", "cli");
     let (fits, grasps) = problem();
     let (f, g) = write_files(&dir, &fits, &grasps);
     cell_plan(&f, &g, "top", &["--json"]).unwrap();
@@ -142,7 +123,7 @@ fn cli_plans_with_each_kernel_and_the_robot() {
 
 #[test]
 fn bad_input_gives_one_clear_error() {
-    let dir = temp_dir("bad");
+    let dir = temp_dir("plan", "bad");
     let (fits, grasps) = problem();
     let (f, g) = write_files(&dir, &fits, &grasps);
     let error = |fits: &Path, grasps: &Path, task: &str| {
@@ -230,7 +211,7 @@ fn bad_input_gives_one_clear_error() {
 /// handle grasp; an unknown task names the tasks.
 #[test]
 fn plans_from_the_shipped_category_database() {
-    let dir = temp_dir("db");
+    let dir = temp_dir("plan", "db");
     let db_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug");
     let db = graspcell::category::CategoryDb::load(&db_dir).unwrap();
     let fits: Vec<ModelFit> = db
@@ -250,7 +231,7 @@ fn plans_from_the_shipped_category_database() {
     };
     let f = dir.join("fits.json");
     std::fs::write(&f, serde_json::to_string(&fits_file).unwrap()).unwrap();
-    let config = config();
+    let config = config_path();
     let argv = [
         "cell",
         "--config",
@@ -333,21 +314,6 @@ fn mug_subset_db(dir: &Path, models: &[&str]) -> PathBuf {
     out
 }
 
-/// Runs the `cell` binary; returns success, stdout, stderr.
-fn cell_bin(args: &[&str]) -> (bool, String, String) {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cell"))
-        .arg("--config")
-        .arg(config())
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
 fn pose_of(v: &serde_json::Value) -> graspcell::geometry::Pose {
     serde_json::from_value::<graspcell::geometry::PoseJson>(v.clone())
         .unwrap()
@@ -361,10 +327,10 @@ fn pose_of(v: &serde_json::Value) -> graspcell::geometry::Pose {
 #[test]
 fn plans_from_a_cloud_and_from_register_output() {
     use graspcell::cloud::io::{write_cloud, CloudEncoding};
-    let dir = temp_dir("cloud");
+    let dir = temp_dir("plan", "cloud");
     let db_dir = mug_subset_db(&dir, &["mug_000", "mug_003"]);
     let db = graspcell::category::CategoryDb::load(&db_dir).unwrap();
-    let cell = graspcell::config::CellConfig::load(Path::new(&config())).unwrap();
+    let cell = graspcell::config::CellConfig::load(Path::new(&config_path())).unwrap();
     // Handle towards the camera's side, in comfortable reach.
     let truth = pose_from_params(&[0.6, 0.03, cell.table.height_m, 0.0, 0.0, 0.87]);
     let index = db.model_index("mug_003").unwrap();
@@ -419,23 +385,27 @@ fn plans_from_a_cloud_and_from_register_output() {
         .norm();
     assert!(dxy < 0.05, "planned palm {dxy} m off the mug's axis");
 
-    // The same registration through `cell register --json` and `--fits`.
+    // The same registration through `cell register --json` and `--fits`: the
+    // register output, as written to `file` in the test directory, planned over.
     let (ok, reg_json, stderr) = cell_bin(&[
         "register", "--target", cloud_s, "--models", db_s, "--seed", "2", "--json",
     ]);
     assert!(ok, "{stderr}");
-    let fits = dir.join("registered.json");
-    std::fs::write(&fits, &reg_json).unwrap();
-    let (ok, stdout, stderr) = cell_bin(&[
-        "plan",
-        "--db",
-        db_s,
-        "--fits",
-        fits.to_str().unwrap(),
-        "--task",
-        "top",
-        "--json",
-    ]);
+    let plan_fits = |file: &str, fits: &str| {
+        let path = dir.join(file);
+        std::fs::write(&path, fits).unwrap();
+        cell_bin(&[
+            "plan",
+            "--db",
+            db_s,
+            "--fits",
+            path.to_str().unwrap(),
+            "--task",
+            "top",
+            "--json",
+        ])
+    };
+    let (ok, stdout, stderr) = plan_fits("registered.json", &reg_json);
     assert!(ok, "{stderr}");
     let from_fits: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert!(from_fits.get("registrations").is_none());
@@ -446,17 +416,7 @@ fn plans_from_a_cloud_and_from_register_output() {
     // NaN in register output: named by file, model and field.
     let mut lines: serde_json::Value = serde_json::from_str(&reg_json).unwrap();
     lines[1]["eps"] = serde_json::Value::Null;
-    let nan = dir.join("nan.json");
-    std::fs::write(&nan, lines.to_string()).unwrap();
-    let (ok, _, stderr) = cell_bin(&[
-        "plan",
-        "--db",
-        db_s,
-        "--fits",
-        nan.to_str().unwrap(),
-        "--task",
-        "top",
-    ]);
+    let (ok, _, stderr) = plan_fits("nan.json", &lines.to_string());
     assert!(!ok);
     assert!(
         stderr.contains("nan.json") && stderr.contains("(mug_003) eps") && stderr.contains("NaN"),
@@ -467,17 +427,7 @@ fn plans_from_a_cloud_and_from_register_output() {
         l["status"] = "failed".into();
         l["reason"] = "too few inliers".into();
     }
-    let failed = dir.join("failed.json");
-    std::fs::write(&failed, lines.to_string()).unwrap();
-    let (ok, _, stderr) = cell_bin(&[
-        "plan",
-        "--db",
-        db_s,
-        "--fits",
-        failed.to_str().unwrap(),
-        "--task",
-        "top",
-    ]);
+    let (ok, _, stderr) = plan_fits("failed.json", &lines.to_string());
     assert!(!ok);
     assert!(
         stderr.contains("failed.json")
@@ -490,8 +440,8 @@ fn plans_from_a_cloud_and_from_register_output() {
 
 #[test]
 fn bad_cloud_requests_are_clear_errors() {
-    let dir = temp_dir("cloud-bad");
-    let config = config();
+    let dir = temp_dir("plan", "cloud-bad");
+    let config = config_path();
     let plan_err = |args: &[&str]| {
         let mut argv = vec!["cell", "--config", &config, "plan"];
         argv.extend_from_slice(args);

@@ -7,6 +7,7 @@ mod can;
 mod category;
 mod cell;
 mod cli_output;
+mod common;
 mod eval;
 mod execute;
 mod fri;

@@ -11,7 +11,7 @@ use crate::plan::category::example_grasps;
 use crate::plan::input::{read_fits_input, read_grasps, FitsInput, Unregistered};
 use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
 use crate::plan::{plan, FitWeight, Kernel, PlanOptions, PlanOutcome, PlannedGrasp, Reachability};
-use crate::register::{register_all, ModelSet, RegisterParams, RegistrationStatus};
+use crate::register::{fits_input, register_all, ModelSet, RegisterParams, RegistrationStatus};
 use crate::robot::Robot;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
@@ -250,29 +250,13 @@ fn register_cloud(
             }
         })
         .collect();
-    let input = FitsInput {
-        fits: registrations.iter().filter_map(|r| r.fit()).collect(),
-        unregistered: summary
-            .iter()
-            .filter_map(|s| {
-                Some(Unregistered {
-                    model: s.model.clone(),
-                    reason: s.reason.clone()?,
-                })
-            })
-            .collect(),
-    };
+    let input = fits_input(&registrations);
     if input.fits.is_empty() {
-        let failed: Vec<String> = input
-            .unregistered
-            .iter()
-            .map(|u| format!("{} ({})", u.model, u.reason))
-            .collect();
         anyhow::bail!(
             "{}: no model of {} registered: {}",
             path.display(),
             db.dir.display(),
-            failed.join(", ")
+            input.unregistered_text()
         );
     }
     Ok((input, summary))

@@ -412,9 +412,8 @@ mod tests {
     use super::*;
     use nalgebra::{Translation3, UnitQuaternion};
 
-    /// A table grid at z = 0 plus a 4 cm cube of points centred at (0.6, 0, 0.03)
-    /// and a small far cluster, in the base frame.
-    fn scene_points() -> (Vec<Point3<f32>>, usize) {
+    /// An 80 x 80 cm table grid at z = 0, 1 cm spacing, in the base frame.
+    fn table_grid() -> Vec<Point3<f32>> {
         let mut pts = Vec::new();
         for i in 0..80 {
             for j in 0..80 {
@@ -425,6 +424,13 @@ mod tests {
                 ));
             }
         }
+        pts
+    }
+
+    /// A table grid at z = 0 plus a 4 cm cube of points centred at (0.6, 0, 0.03)
+    /// and a small far cluster, in the base frame.
+    fn scene_points() -> (Vec<Point3<f32>>, usize) {
+        let mut pts = table_grid();
         let mut object = 0;
         for i in 0..20 {
             for j in 0..20 {
@@ -516,16 +522,7 @@ mod tests {
         // A table, an open box's wall (4 x 4 cm, 1.2..5 cm high) and, 2 cm below its
         // rim and cut off from the wall by a 1.2 cm gap, the floor seen inside it
         // (nearer the workspace centre than the wall); and another object 10 cm away.
-        let mut pts = Vec::new();
-        for i in 0..80 {
-            for j in 0..80 {
-                pts.push(Point3::new(
-                    0.2 + i as f32 * 0.01,
-                    -0.4 + j as f32 * 0.01,
-                    0.0,
-                ));
-            }
-        }
+        let mut pts = table_grid();
         let mut object = 0;
         for i in 0..21 {
             for j in 0..21 {

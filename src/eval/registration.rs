@@ -6,7 +6,7 @@ use super::experiment::Registrar;
 use crate::category::CategoryDb;
 use crate::cloud::PointCloud;
 use crate::plan::ModelFit;
-use crate::register::{register_all, ModelSet, RegisterError, RegisterParams, RegistrationStatus};
+use crate::register::{fits_input, register_all, ModelSet, RegisterError, RegisterParams};
 
 /// Registration against the models of one category database.
 #[derive(Debug, Clone)]
@@ -49,17 +49,13 @@ impl Registrar for CategoryRegistrar {
         };
         let registrations =
             register_all(target_base, set, &self.params, seed).map_err(|e| e.to_string())?;
-        let fits: Vec<ModelFit> = registrations.iter().filter_map(|r| r.fit()).collect();
-        if fits.is_empty() {
-            let reasons: Vec<String> = registrations
-                .iter()
-                .filter_map(|r| match &r.status {
-                    RegistrationStatus::Failed(why) => Some(format!("{}: {why}", r.model)),
-                    RegistrationStatus::Ok => None,
-                })
-                .collect();
-            return Err(format!("no model registered ({})", reasons.join("; ")));
+        let input = fits_input(&registrations);
+        if input.fits.is_empty() {
+            return Err(format!(
+                "no model registered: {}",
+                input.unregistered_text()
+            ));
         }
-        Ok(fits)
+        Ok(input.fits)
     }
 }

@@ -140,6 +140,18 @@ pub struct FitsInput {
     pub unregistered: Vec<Unregistered>,
 }
 
+impl FitsInput {
+    /// The models that did not register, with their reasons: `name (reason), ...`.
+    pub fn unregistered_text(&self) -> String {
+        let failed: Vec<String> = self
+            .unregistered
+            .iter()
+            .map(|u| format!("{} ({})", u.model, u.reason))
+            .collect();
+        failed.join(", ")
+    }
+}
+
 /// Largest deviation from a rigid transform accepted in a registration's matrix
 /// (rotation orthonormality, bottom row), well above what printing 17 digits loses.
 const RIGID_TOLERANCE: f64 = 1e-6;
@@ -240,14 +252,9 @@ pub fn fits_from_registrations(
         }
     }
     if input.fits.is_empty() {
-        let failed: Vec<String> = input
-            .unregistered
-            .iter()
-            .map(|u| format!("{} ({})", u.model, u.reason))
-            .collect();
         return Err(parse(format!(
             "no fits: no model registered: {}",
-            failed.join(", ")
+            input.unregistered_text()
         )));
     }
     Ok(input)

@@ -47,6 +47,7 @@ use crate::cloud::segment::{segment_object, SegmentError, SegmentParams};
 use crate::cloud::voxel::voxel_downsample;
 use crate::cloud::PointCloud;
 use crate::geometry::Pose;
+use crate::plan::input::{FitsInput, Unregistered};
 use crate::plan::ModelFit;
 use field::SurfaceLookup;
 use fpfh::{compute_fpfh, mutual_nearest, Fpfh};
@@ -1363,6 +1364,24 @@ pub struct Perception {
     pub register: RegisterTimings,
     /// Wall-clock time of both (ms).
     pub total_ms: f64,
+}
+
+/// The planner's input from `registrations`: the fits of the models that registered,
+/// and the others with the reasons they failed.
+pub fn fits_input(registrations: &[ModelRegistration]) -> FitsInput {
+    FitsInput {
+        fits: registrations.iter().filter_map(|r| r.fit()).collect(),
+        unregistered: registrations
+            .iter()
+            .filter_map(|r| match &r.status {
+                RegistrationStatus::Failed(why) => Some(Unregistered {
+                    model: r.model.clone(),
+                    reason: why.clone(),
+                }),
+                RegistrationStatus::Ok => None,
+            })
+            .collect(),
+    }
 }
 
 impl Perception {
