@@ -358,6 +358,23 @@ fn registration_text(r: &crate::eval::experiment::RegistrationStats) -> String {
     )
 }
 
+/// What both experiments' text reports end with: registration, tallies, skipped
+/// targets, and the chart's path.
+fn common_text(
+    registration: &crate::eval::experiment::RegistrationStats,
+    rows: &[TallyRow],
+    targets: &[crate::eval::TargetReport],
+    png: Option<&Path>,
+) -> String {
+    let mut text = registration_text(registration);
+    text += &tally_table(rows);
+    text += &skipped_text(targets);
+    if let Some(p) = png {
+        text += &format!("chart: {}\n", p.display());
+    }
+    text
+}
+
 fn skipped_text(targets: &[crate::eval::TargetReport]) -> String {
     let mut text = String::new();
     for t in targets {
@@ -468,12 +485,7 @@ fn loo_text(r: &LooReport, seconds: f64, png: Option<&Path>) -> String {
         "{} runs simulated in {:.1} s; equal within epsilon {}\n",
         r.runs, seconds, r.equal_tolerance
     );
-    text += &registration_text(&r.registration);
-    text += &tally_table(&r.rows);
-    text += &skipped_text(&r.targets);
-    if let Some(p) = png {
-        text += &format!("chart: {}\n", p.display());
-    }
+    text += &common_text(&r.registration, &r.rows, &r.targets, png);
     text
 }
 
@@ -563,12 +575,7 @@ fn cross_text(r: &CrossReport, seconds: f64, png: Option<&Path>) -> String {
         );
     }
     text += "(epsilon of the grasp simulated on the test object; 0 = not force closure or a collision)\n";
-    text += &registration_text(&r.registration);
-    text += &tally_table(&r.rows);
-    text += &skipped_text(&r.targets);
-    if let Some(p) = png {
-        text += &format!("chart: {}\n", p.display());
-    }
+    text += &common_text(&r.registration, &r.rows, &r.targets, png);
     text
 }
 
