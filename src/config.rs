@@ -2,6 +2,11 @@
 //!
 //! Every section rejects unknown fields so a typo is an error, not a silent
 //! default. Paths are relative to the directory of the configuration file.
+//!
+//! Without `--config`, the configuration is found as a Unix tool's would be
+//! ([`locate`]): `$GRASPCELL_CONFIG`, then `./robot/cell.toml`, then
+//! `/etc/graspcell/cell.toml`, then the defaults built into the binary (the shipped
+//! `robot/cell.toml` with the shipped URDF), named [`BUILTIN_CONFIG`].
 
 use crate::geometry::{Pose, PoseJson};
 use serde::{Deserialize, Serialize};
@@ -9,6 +14,73 @@ use std::path::{Path, PathBuf};
 
 /// Default location of the cell configuration, relative to the repository root.
 pub const DEFAULT_CONFIG_PATH: &str = "robot/cell.toml";
+
+/// The environment variable that names the configuration file.
+pub const CONFIG_ENV: &str = "GRASPCELL_CONFIG";
+
+/// The system-wide configuration of an installed cell.
+pub const SYSTEM_CONFIG_PATH: &str = "/etc/graspcell/cell.toml";
+
+/// The name of the configuration built into the binary (`--config builtin:cell.toml`).
+pub const BUILTIN_CONFIG: &str = "builtin:cell.toml";
+
+/// The name of the URDF built into the binary (`robot.urdf = "builtin:lbr4_bh8_282.urdf"`).
+pub const BUILTIN_URDF: &str = "builtin:lbr4_bh8_282.urdf";
+
+/// The shipped configuration and URDF, compiled in.
+const BUILTIN_CONFIG_TEXT: &str = include_str!("../robot/cell.toml");
+/// The shipped URDF, compiled in.
+pub const BUILTIN_URDF_TEXT: &str = include_str!("../robot/lbr4_bh8_282.urdf");
+
+/// Where the configuration comes from when `--config` is not given, and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Located {
+    /// The file, or [`BUILTIN_CONFIG`].
+    pub path: PathBuf,
+    /// Which rule chose it, for `cell print-config`.
+    pub rule: &'static str,
+}
+
+/// Finds the configuration: `$GRASPCELL_CONFIG` (used even when the file is missing,
+/// so loading names it), `./robot/cell.toml`, `/etc/graspcell/cell.toml`, else the
+/// built-in defaults.
+pub fn locate() -> Located {
+    locate_in(
+        std::env::var_os(CONFIG_ENV).map(PathBuf::from),
+        Path::new(DEFAULT_CONFIG_PATH),
+        Path::new(SYSTEM_CONFIG_PATH),
+    )
+}
+
+fn locate_in(env: Option<PathBuf>, local: &Path, system: &Path) -> Located {
+    let absolute = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    if let Some(path) = env.filter(|p| !p.as_os_str().is_empty()) {
+        return Located {
+            path: absolute(&path),
+            rule: "$GRASPCELL_CONFIG",
+        };
+    }
+    for (path, rule) in [
+        (local, "./robot/cell.toml in the working directory"),
+        (system, "the system configuration"),
+    ] {
+        if path.is_file() {
+            return Located {
+                path: absolute(path),
+                rule,
+            };
+        }
+    }
+    Located {
+        path: PathBuf::from(BUILTIN_CONFIG),
+        rule: "no configuration file found: the built-in defaults",
+    }
+}
+
+/// The configuration path `--config` defaults to ([`locate`]).
+pub fn default_config_path() -> PathBuf {
+    locate().path
+}
 
 /// Errors of loading or validating the configuration.
 #[derive(Debug, thiserror::Error)]
@@ -170,17 +242,25 @@ pub struct CanConfig {
 
 impl CellConfig {
     /// Loads and validates a configuration file; relative paths become relative to it.
+    /// [`BUILTIN_CONFIG`] is the shipped configuration with the built-in URDF.
     pub fn load(path: &Path) -> Result<CellConfig, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let builtin = path == Path::new(BUILTIN_CONFIG);
+        let text = if builtin {
+            BUILTIN_CONFIG_TEXT.to_string()
+        } else {
+            std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+                path: path.to_path_buf(),
+                source,
+            })?
+        };
         let mut config: CellConfig = toml::from_str(&text).map_err(|e| ConfigError::Parse {
             path: path.to_path_buf(),
             message: e.to_string().trim().replace('\n', " "),
         })?;
-        let dir = path.parent().unwrap_or(Path::new("."));
-        if config.robot.urdf.is_relative() {
+        if builtin {
+            config.robot.urdf = PathBuf::from(BUILTIN_URDF);
+        } else if config.robot.urdf.is_relative() && config.robot.urdf != Path::new(BUILTIN_URDF) {
+            let dir = path.parent().unwrap_or(Path::new("."));
             config.robot.urdf = dir.join(&config.robot.urdf);
         }
         config.validate(path)?;
@@ -299,6 +379,40 @@ mod tests {
 
     fn shipped() -> PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_CONFIG_PATH)
+    }
+
+    #[test]
+    fn configuration_is_found_in_the_order_a_unix_tool_uses() {
+        let dir = std::env::temp_dir().join(format!("graspcell-locate-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let local = dir.join("local.toml");
+        let system = dir.join("system.toml");
+        let env = dir.join("env.toml");
+        let found = |env: Option<&Path>| locate_in(env.map(Path::to_path_buf), &local, &system);
+        assert_eq!(found(None).path, PathBuf::from(BUILTIN_CONFIG));
+        std::fs::write(&system, "").unwrap();
+        assert_eq!(found(None).path, system);
+        std::fs::write(&local, "").unwrap();
+        assert_eq!(found(None).path, local);
+        // The variable wins even over existing files, and even when its file is missing.
+        assert_eq!(found(Some(&env)).path, env);
+        assert_eq!(found(Some(Path::new(""))).path, local);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn builtin_configuration_equals_the_shipped_file_with_the_builtin_urdf() {
+        let builtin = CellConfig::load(Path::new(BUILTIN_CONFIG)).unwrap();
+        let shipped = CellConfig::load(&shipped()).unwrap();
+        assert_eq!(builtin.robot.urdf, PathBuf::from(BUILTIN_URDF));
+        let without_urdf = |c: &CellConfig| {
+            let mut c = c.clone();
+            c.robot.urdf = PathBuf::new();
+            toml::to_string(&c).unwrap()
+        };
+        assert_eq!(without_urdf(&builtin), without_urdf(&shipped));
+        let shipped_urdf = std::fs::read_to_string(&shipped.robot.urdf).unwrap();
+        assert_eq!(BUILTIN_URDF_TEXT, shipped_urdf);
     }
 
     #[test]

@@ -4,8 +4,9 @@
 //! novel object of a known category for a task, by the method of Nikandrova & Kyrki
 //! (2015): one depth snapshot, registration against every model of the category, and
 //! the hand pose that maximises expected stability and task compatibility over all of
-//! them, subject to reachability and the table. See `ARCHITECTURE` in the shared docs
-//! for the processes and data flow; each module below owns one concept.
+//! them, subject to reachability and the table. See `ARCHITECTURE.md` in the repository
+//! for the processes, their messages and the module layers; each module below owns
+//! one concept.
 
 pub mod calib;
 pub mod category;
@@ -20,6 +21,7 @@ pub mod fsio;
 pub mod geometry;
 pub mod hw;
 pub mod ipc;
+pub mod logging;
 pub mod mesh;
 pub mod plan;
 pub mod ply;

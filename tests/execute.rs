@@ -74,6 +74,8 @@ fn plan(robot: &Robot, palm: &Pose, pregrasp: &Pose) -> ExecutionRequest {
         joints_rad: grasp,
         pregrasp_joints_rad: pre,
         spread_rad: 0.3,
+        task: None,
+        method: None,
     }
 }
 
@@ -515,12 +517,9 @@ fn unsafe_plans_are_refused_before_any_motion_with_the_numbers() {
     assert!(log.trim().is_empty(), "the hand was addressed:\n{log}");
 }
 
-#[test]
-fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
-    let dir = temp_dir("cli");
-    let cell = CellConfig::load(&config_path()).unwrap();
-    let robot = Robot::load(&cell).unwrap();
-    // The shipped configuration with a free port, a private bus and an absolute URDF.
+/// The shipped configuration with a free FRI port, a private bus and an absolute
+/// URDF, written to `dir/cell.toml`.
+fn private_config(dir: &Path, cell: &CellConfig) -> PathBuf {
     let text = std::fs::read_to_string(config_path()).unwrap();
     let text = text
         .replace(
@@ -535,25 +534,101 @@ fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
         );
     let config = dir.join("cell.toml");
     std::fs::write(&config, text).unwrap();
+    config
+}
+
+/// `cell execute --json --plan FILE` against in-process simulators (fingers stop at
+/// 1.0, 1.1, 1.2 rad): success and the JSON report.
+fn cell_execute(config: &Path, plan: &Path) -> (bool, serde_json::Value) {
+    let out = Command::new(env!("CARGO_BIN_EXE_cell"))
+        .arg("--config")
+        .arg(config)
+        .args(["execute", "--json", "--hold-s", "0.5"])
+        .args(["--sim-contact-rad", "1.0,1.1,1.2"])
+        // Lenient link levels: a loaded machine must not drop the robot.
+        .args(["--sim-miss-rates", "0.05,0.2,0.5"])
+        .args(["--sim-consecutive-misses", "15,30"])
+        .arg("--plan")
+        .arg(plan)
+        .stderr(Stdio::null())
+        .output()
+        .unwrap();
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)));
+    (out.status.success(), json)
+}
+
+/// Plan then execute: `cell plan --out p.json` writes the plan `cell execute --plan
+/// p.json` runs, unchanged (one schema), on the shipped mug database.
+#[test]
+fn cell_plan_out_then_cell_execute_runs_the_planned_grasp() {
+    let dir = temp_dir("plan-then-execute");
+    let cell = CellConfig::load(&config_path()).unwrap();
+    let config = private_config(&dir, &cell);
+    let db = Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug");
+    let models = graspcell::category::CategoryDb::load(&db)
+        .unwrap()
+        .file
+        .models;
+    let fits: Vec<serde_json::Value> = models
+        .iter()
+        .map(|m| {
+            serde_json::json!({
+                "name": m.name,
+                "base_from_model": {"xyz": [0.55, 0.05, 0.0], "rpy": [0.0, 0.0, 2.0]},
+                "eps_m2": 1e-5,
+                "sigma_m2": 2e-6,
+            })
+        })
+        .collect();
+    let fits_path = dir.join("fits.json");
+    std::fs::write(&fits_path, serde_json::json!({ "fits": fits }).to_string()).unwrap();
+    let plan_path = dir.join("p.json");
+    let out = Command::new(env!("CARGO_BIN_EXE_cell"))
+        .arg("--config")
+        .arg(&config)
+        .args(["plan", "--task", "top", "--db"])
+        .arg(&db)
+        .arg("--fits")
+        .arg(&fits_path)
+        .arg("--out")
+        .arg(&plan_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let plan = ExecutionRequest::load(&plan_path).unwrap();
+    assert_eq!(plan.task.as_deref(), Some("top"));
+    assert_eq!(plan.method.as_deref(), Some("laplace"));
+    let (ok, json) = cell_execute(&config, &plan_path);
+    assert!(ok, "{json:#}");
+    assert_eq!(json["outcome"], "success", "{json:#}");
+    // The arm went where the plan said: the final palm is the lifted grasp pose.
+    let palm = &json["final_palm"]["xyz"];
+    for (axis, planned) in [(0, plan.palm.xyz[0]), (1, plan.palm.xyz[1])] {
+        let reached = palm[axis].as_f64().unwrap();
+        assert!(
+            (reached - planned).abs() < 2e-3,
+            "{palm} vs {:?}",
+            plan.palm
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
+    let dir = temp_dir("cli");
+    let cell = CellConfig::load(&config_path()).unwrap();
+    let robot = Robot::load(&cell).unwrap();
+    let config = private_config(&dir, &cell);
     let run = |plan: &ExecutionRequest, name: &str| {
         let path = dir.join(name);
         std::fs::write(&path, serde_json::to_string(plan).unwrap()).unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_cell"))
-            .arg("--config")
-            .arg(&config)
-            .args(["execute", "--json", "--hold-s", "0.5"])
-            .args(["--sim-contact-rad", "1.0,1.1,1.2"])
-            // Lenient link levels: a loaded machine must not drop the robot.
-            .args(["--sim-miss-rates", "0.05,0.2,0.5"])
-            .args(["--sim-consecutive-misses", "15,30"])
-            .arg("--plan")
-            .arg(&path)
-            .stderr(Stdio::null())
-            .output()
-            .unwrap();
-        let json: serde_json::Value = serde_json::from_slice(&out.stdout)
-            .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)));
-        (out.status.success(), json)
+        cell_execute(&config, &path)
     };
     let (ok, json) = run(&good_plan(&robot), "good.json");
     assert!(ok, "{json:#}");

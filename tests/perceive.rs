@@ -123,7 +123,7 @@ fn render_mug(
 
 #[test]
 fn sim_view_of_a_mug_registers_to_its_own_model_within_5_mm_and_5_deg() {
-    graspcell::cli::init_logging();
+    graspcell::logging::init_logging();
     let config = config();
     // Handle visible: it points sideways-towards the camera (yaw 60 deg; the
     // camera looks along -x from x = 1.25 m).

@@ -13,6 +13,7 @@ mod execute;
 mod fri;
 mod grasp;
 mod ipc;
+mod layers;
 mod objects;
 mod perceive;
 mod plan;

@@ -58,7 +58,7 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    graspcell::cli::init_logging();
+    graspcell::logging::init_logging();
     match run(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {

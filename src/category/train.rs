@@ -13,7 +13,8 @@ use super::{
     tasks_of, CategoryDb, CategoryError, CloudSpec, DatabaseFile, GraspEntry, MetricSettings,
     ModelEntry, DATABASE_FILE, FORMAT_VERSION,
 };
-use crate::cloud::io::{write_atomically, write_cloud};
+use crate::cloud::io::write_cloud;
+use crate::fsio::write_atomically;
 use crate::geometry::{params_from_pose, PoseJson};
 use crate::mesh::procedural::Category;
 use crate::mesh::TriMesh;

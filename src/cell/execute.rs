@@ -97,6 +97,8 @@ pub fn execution_request(plan: &GraspPlan) -> Result<ExecutionRequest, CellError
         joints_rad: plan.joints_rad,
         pregrasp_joints_rad: plan.pregrasp_joints_rad,
         spread_rad: plan.spread_rad,
+        task: None,
+        method: Some(plan.method()?.to_string()),
     })
 }
 

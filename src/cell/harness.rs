@@ -130,6 +130,37 @@ fn spawn(bin_dir: &Path, name: &str, args: &[String], piped: bool) -> Result<Chi
         })
 }
 
+/// The binaries the harness starts: every stage, and the simulators when asked.
+fn needed_binaries(options: &HarnessOptions) -> Vec<String> {
+    let mut names: Vec<String> = STAGES.iter().map(|s| format!("cell-{s}")).collect();
+    if options.simulated_devices {
+        names.extend(["cell-sim-arm".to_string(), "cell-sim-hand".to_string()]);
+    }
+    names
+}
+
+/// Fails before anything starts when a binary the cell needs is not in `bin_dir`,
+/// naming the missing ones and the command that builds them (`cargo run --bin cell`
+/// builds only `cell`).
+fn check_binaries(options: &HarnessOptions) -> Result<(), CellError> {
+    let missing: Vec<String> = needed_binaries(options)
+        .into_iter()
+        .filter(|name| !options.bin_dir.join(name).is_file())
+        .collect();
+    if missing.is_empty() {
+        return Ok(());
+    }
+    Err(CellError::Process {
+        name: missing.join(", "),
+        detail: format!(
+            "not found in {} (the cell runs each stage and simulator as its own binary); \
+             build them all with `cargo build --release --bins`, or install them next to \
+             `cell` (`cargo install --path .`)",
+            options.bin_dir.display()
+        ),
+    })
+}
+
 fn signal(child: &Child, sig: libc::c_int) {
     // SAFETY: kill(2) on the id of our own child; no memory is involved.
     unsafe {
@@ -156,6 +187,7 @@ impl Cell {
     /// all stages are up.
     pub fn start(options: HarnessOptions, domain: Domain) -> Result<Cell, CellError> {
         let config = CellConfig::load(&options.stage.config)?;
+        check_binaries(&options)?;
         let tag = format!(
             "{}x{}",
             std::process::id(),
@@ -584,4 +616,40 @@ pub fn random_placement(config: &CellConfig, rng: &mut ChaCha8Rng, index: u32) -
 /// The random generator of placements of object `object_index` under `seed`.
 pub fn placement_rng(seed: u64, object_index: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(instance_seed(seed ^ 0x706c_6163, object_index))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Args {
+        #[command(flatten)]
+        stage: StageArgs,
+    }
+
+    fn options_in(bin_dir: &Path) -> HarnessOptions {
+        let mut options = HarnessOptions::demo(Args::parse_from(["t"]).stage).unwrap();
+        options.bin_dir = bin_dir.to_path_buf();
+        options
+    }
+
+    #[test]
+    fn missing_sibling_binaries_are_named_with_the_command_that_builds_them() {
+        let dir = std::env::temp_dir().join(format!("graspcell-bins-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("cell-camera"), b"").unwrap();
+        let err = check_binaries(&options_in(&dir)).unwrap_err().to_string();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert!(
+            err.contains("cell-sim-hand") && err.contains("cell-plan"),
+            "{err}"
+        );
+        assert!(
+            !err.contains("cell-camera,"),
+            "present binary listed: {err}"
+        );
+        assert!(err.contains("cargo build --release --bins"), "{err}");
+    }
 }

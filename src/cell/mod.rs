@@ -139,7 +139,7 @@ pub enum CellError {
 #[derive(Debug, Clone, Args)]
 pub struct StageArgs {
     /// Cell configuration file (backends, devices, limits).
-    #[arg(long, default_value = crate::config::DEFAULT_CONFIG_PATH)]
+    #[arg(long, default_value_os_t = crate::config::default_config_path())]
     pub config: PathBuf,
     /// Cell instance name: cells with different names on one machine share nothing.
     #[arg(long, default_value = DEFAULT_INSTANCE)]
@@ -262,7 +262,7 @@ pub fn stage_main(
     stage: &str,
     run: impl FnOnce() -> Result<(), CellError>,
 ) -> std::process::ExitCode {
-    crate::cli::init_logging();
+    crate::logging::init_logging();
     install_stop_handler();
     match run() {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -198,6 +198,8 @@ pub fn executable_joints(
             joints_rad: at.joints,
             pregrasp_joints_rad: pre.joints,
             spread_rad: grasp.spread_rad,
+            task: None,
+            method: None,
         };
         match validate_grasp(check, config, &request, current) {
             Ok(_) => {
@@ -372,6 +374,8 @@ mod tests {
             joints_rad: far_grasp.joints,
             pregrasp_joints_rad: far.joints,
             spread_rad: 0.0,
+            task: None,
+            method: None,
         };
         assert!(
             validate_grasp(&check, &motions, &from_far, &home).is_err(),
@@ -384,6 +388,8 @@ mod tests {
             joints_rad: grasp.joints.unwrap(),
             pregrasp_joints_rad: grasp.pregrasp_joints.unwrap(),
             spread_rad: 0.0,
+            task: None,
+            method: None,
         };
         validate_grasp(&check, &motions, &request, &home).unwrap();
         // A grasp with the palm in the table has no solution: a reachability failure.

@@ -32,8 +32,10 @@ pub use output::{error_chain, write_stdout};
 #[derive(Debug, Parser)]
 #[command(name = "cell", version, about, long_about = None)]
 pub struct Cli {
-    /// Cell configuration file.
-    #[arg(long, global = true, default_value = crate::config::DEFAULT_CONFIG_PATH)]
+    /// Cell configuration file. Default: $GRASPCELL_CONFIG, else ./robot/cell.toml, else
+    /// /etc/graspcell/cell.toml, else the built-in defaults (`builtin:cell.toml`);
+    /// `cell print-config` names the one used.
+    #[arg(long, global = true, default_value_os_t = crate::config::default_config_path())]
     pub config: PathBuf,
     /// What to do.
     #[command(subcommand)]
@@ -104,7 +106,7 @@ pub enum Command {
 
 /// Entry point of the `cell` binary: parses arguments, runs, prints the error chain.
 pub fn main() -> ExitCode {
-    init_logging();
+    crate::logging::init_logging();
     let cli = Cli::parse();
     match run(cli) {
         Ok(code) => code,
@@ -122,7 +124,14 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Ik(args) => robot::ik(&cli.config, args),
         Command::PrintConfig => {
             let config = crate::config::CellConfig::load(&cli.config)?;
-            write_stdout(&toml::to_string_pretty(&config)?)?;
+            let located = crate::config::locate();
+            let rule = if located.path == cli.config {
+                located.rule
+            } else {
+                "--config"
+            };
+            let header = format!("# configuration: {} ({rule})\n", cli.config.display());
+            write_stdout(&(header + &toml::to_string_pretty(&config)?))?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Grade(args) => trial::grade(args),
@@ -145,14 +154,4 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Register(args) => perceive::register(&cli.config, args),
         Command::Eval(which) => eval::run(&cli.config, which),
     }
-}
-
-/// Logs to stderr via `tracing`; the level comes from `RUST_LOG` (default `warn`).
-pub fn init_logging() {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .try_init();
 }

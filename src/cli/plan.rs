@@ -3,21 +3,28 @@
 use super::bench::{median, percentile};
 use super::emit;
 use crate::category::CategoryDb;
+use crate::cell::harness::HOME_JOINTS_RAD;
+use crate::cell::plan::executable_joints;
 use crate::cloud::io::read_cloud;
 use crate::config::CellConfig;
+use crate::execute::{ExecutionRequest, ExecutorConfig, SafetyCheck, SafetyLimits};
+use crate::fsio::write_atomically;
 use crate::geometry::parse_numbers;
 use crate::geometry::{params_from_pose, Pose};
 use crate::plan::category::example_grasps;
 use crate::plan::input::{read_fits_input, read_grasps, FitsInput, Unregistered};
 use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
+use crate::plan::GraspPlan;
 use crate::plan::{plan, FitWeight, Kernel, PlanOptions, PlanOutcome, PlannedGrasp, Reachability};
 use crate::register::{fits_input, register_all, ModelSet, RegisterParams, RegistrationStatus};
+use crate::robot::kinematics::ArmJoints;
 use crate::robot::Robot;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// The density family on the command line.
@@ -154,8 +161,16 @@ pub struct PlanArgs {
     #[arg(long, default_value_t = 1e4)]
     pub lambda_eps_per_m2: f64,
     /// Skip reachability (the paper's simulation setting: only the table bound).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "out")]
     pub no_reach: bool,
+    /// Write the planned grasp as a plan for `cell execute --plan` (the executor's
+    /// schema), with joint solutions the executor accepts from --from-joints.
+    #[arg(long, value_name = "PLAN_JSON")]
+    pub out: Option<PathBuf>,
+    /// Arm joints A1,A2,E1,A3,A4,A5,A6 (rad) the grasp will start from (--out);
+    /// default: the cell's home configuration.
+    #[arg(long, value_name = "Q1,...,Q7", allow_hyphen_values = true)]
+    pub from_joints: Option<String>,
     /// Run the starts one after another instead of in parallel.
     #[arg(long)]
     pub serial: bool,
@@ -337,16 +352,25 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     let robot = if args.no_reach {
         None
     } else {
-        Some(Robot::load(&cell)?)
+        Some(Arc::new(Robot::load(&cell)?))
     };
     let outcome = plan(
         &fits,
         &grasps,
         &args.task,
         &options,
-        robot.as_ref().map(|r| r as &dyn Reachability),
+        robot.as_deref().map(|r| r as &dyn Reachability),
     )
     .with_context(|| format!("planning task {:?}", args.task))?;
+    if let (Some(out), Some(robot)) = (&args.out, &robot) {
+        write_plan(
+            &cell,
+            robot,
+            &outcome.plan,
+            args.from_joints.as_deref(),
+            out,
+        )?;
+    }
     let report = PlanReport {
         fits: fits_path,
         grasps: grasps_path,
@@ -410,6 +434,38 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
         text
     })?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// Writes `plan` for the executor ([`ExecutionRequest`]) to `out`, with joint
+/// solutions whose moves from `from_joints` (default: home) the executor accepts —
+/// the plan stage's own choice ([`executable_joints`]).
+fn write_plan(
+    cell: &CellConfig,
+    robot: &Arc<Robot>,
+    plan: &GraspPlan,
+    from_joints: Option<&str>,
+    out: &Path,
+) -> anyhow::Result<()> {
+    let current: ArmJoints = match from_joints {
+        Some(text) => parse_numbers(text, 7, "--from-joints")?
+            .try_into()
+            .expect("seven numbers"),
+        None => HOME_JOINTS_RAD,
+    };
+    let check = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(cell, robot));
+    let mut grasp = plan.grasp.clone();
+    executable_joints(
+        robot,
+        &check,
+        &ExecutorConfig::from_cell(cell),
+        &mut grasp,
+        &current,
+    )
+    .map_err(|f| anyhow::anyhow!("--out {}: {}", out.display(), f.detail))?;
+    let request = ExecutionRequest::from_planned(&grasp, &plan.task, plan.kernel.name())?;
+    write_atomically(out, serde_json::to_string_pretty(&request)?.as_bytes())
+        .with_context(|| format!("writing {}", out.display()))?;
+    Ok(())
 }
 
 /// Options of `cell bench plan`.

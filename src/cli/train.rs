@@ -246,7 +246,7 @@ fn suggest(hand: &HandModel, args: SuggestArgs) -> anyhow::Result<ExitCode> {
             None => format!("  {} ({}): none found, add one by hand\n", r.name, r.task),
         };
     }
-    crate::cloud::io::write_atomically(&args.out, file.to_toml(&header).as_bytes())
+    crate::fsio::write_atomically(&args.out, file.to_toml(&header).as_bytes())
         .with_context(|| format!("cannot write {}", args.out.display()))?;
     super::emit(args.json, &reports, |r: &Vec<_>| {
         let found = r

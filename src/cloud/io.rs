@@ -2,6 +2,7 @@
 //! extension (`.ply`, `.pcd`), and writes that never leave a half-written file.
 
 use super::PointCloud;
+use crate::fsio::write_atomically;
 use crate::mesh::MeshError;
 use std::path::{Path, PathBuf};
 
@@ -164,8 +165,6 @@ pub fn check_shape(cloud: &PointCloud) -> Result<(), String> {
     }
     Ok(())
 }
-
-pub use crate::fsio::write_atomically;
 
 /// Test helpers shared by the cloud and mesh file-format tests.
 #[cfg(test)]

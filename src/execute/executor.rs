@@ -636,6 +636,8 @@ mod tests {
             joints_rad: grasp.joints,
             pregrasp_joints_rad: pre.joints,
             spread_rad: 0.3,
+            task: None,
+            method: None,
         }
     }
 

@@ -2,6 +2,7 @@
 
 use crate::geometry::{check_finite, Pose, PoseJson};
 use crate::hw::fri::JOINTS;
+use crate::plan::PlannedGrasp;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 use std::path::Path;
@@ -38,9 +39,11 @@ pub enum RequestError {
 /// One grasp to execute: palm poses (robot base frame) and the planner's joint
 /// solutions for them, and the hand's spread.
 ///
-/// The planner's grasp plan maps into this; as JSON it is
-/// `{"palm": pose, "pregrasp": pose, "joints_rad": [7], "pregrasp_joints_rad": [7],
-/// "spread_rad": s}` with poses as `{"xyz": [..], "rpy": [..]}`.
+/// This is the one plan schema: the planner stage's message converts into it, `cell
+/// plan --out` writes it and `cell execute --plan` reads it. As JSON it is
+/// `{"task": t, "method": m, "palm": pose, "pregrasp": pose, "joints_rad": [7],
+/// "pregrasp_joints_rad": [7], "spread_rad": s}` with poses as
+/// `{"xyz": [..], "rpy": [..]}`; `task` and `method` are optional and informational.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ExecutionRequest {
@@ -54,6 +57,12 @@ pub struct ExecutionRequest {
     pub pregrasp_joints_rad: [f64; JOINTS],
     /// Spread of F1 and F2 (0 to pi rad) to pre-shape before the approach.
     pub spread_rad: f64,
+    /// The task the grasp was planned for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub task: Option<String>,
+    /// The planning method (kernel or baseline) that chose it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub method: Option<String>,
 }
 
 /// A validated request with its poses decoded.
@@ -72,6 +81,32 @@ pub struct ValidRequest {
 }
 
 impl ExecutionRequest {
+    /// The request for a planned grasp: its poses, spread and joint solutions, which
+    /// a grasp planned without reachability does not have (an error naming them).
+    pub fn from_planned(
+        grasp: &PlannedGrasp,
+        task: &str,
+        method: &str,
+    ) -> Result<ExecutionRequest, RequestError> {
+        let missing = |field| RequestError::Invalid {
+            field,
+            problem: "the planned grasp has no joint solution (planned without reachability, \
+                      or unreachable)"
+                .into(),
+        };
+        Ok(ExecutionRequest {
+            palm: PoseJson::from(&grasp.pose),
+            pregrasp: PoseJson::from(&grasp.pregrasp_pose),
+            joints_rad: grasp.joints.ok_or_else(|| missing("joints_rad"))?,
+            pregrasp_joints_rad: grasp
+                .pregrasp_joints
+                .ok_or_else(|| missing("pregrasp_joints_rad"))?,
+            spread_rad: grasp.spread_rad,
+            task: Some(task.to_string()),
+            method: Some(method.to_string()),
+        })
+    }
+
     /// Reads a request from a JSON file.
     pub fn load(path: &Path) -> Result<ExecutionRequest, RequestError> {
         let text = std::fs::read_to_string(path).map_err(|source| RequestError::Read {
@@ -134,6 +169,8 @@ mod tests {
             joints_rad: [0.0, -1.0, 0.0, 1.4, 0.0, -0.74, 0.0],
             pregrasp_joints_rad: [0.0, -0.83, 0.0, 1.41, 0.0, -0.9, 0.0],
             spread_rad: 0.5,
+            task: Some("top".into()),
+            method: None,
         }
     }
 

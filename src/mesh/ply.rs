@@ -4,7 +4,7 @@
 //! round-trip exactly.
 
 use super::{MeshError, TriMesh};
-use crate::cloud::io::write_atomically;
+use crate::fsio::write_atomically;
 use crate::ply::{self, Column, Element, Format, Ply, PlyError, Property, ScalarType, Values};
 use nalgebra::Point3;
 use std::path::Path;

@@ -7,7 +7,7 @@
 //! Binary STL stores `f32`, so writing rounds coordinates to `f32`.
 
 use super::{MeshError, TriMesh};
-use crate::cloud::io::write_atomically;
+use crate::fsio::write_atomically;
 use nalgebra::{Point3, Vector3};
 use std::collections::HashMap;
 use std::path::Path;

@@ -122,10 +122,14 @@ pub struct RobotDescription {
 impl RobotDescription {
     /// Loads and validates a URDF; `arm_joints` become variables 0..n in that order.
     pub fn load(path: &Path, arm_joints: &[String]) -> Result<RobotDescription, RobotError> {
-        let text = std::fs::read_to_string(path).map_err(|source| RobotError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = if path == Path::new(crate::config::BUILTIN_URDF) {
+            crate::config::BUILTIN_URDF_TEXT.to_string()
+        } else {
+            std::fs::read_to_string(path).map_err(|source| RobotError::Read {
+                path: path.to_path_buf(),
+                source,
+            })?
+        };
         let urdf = urdf_rs::read_from_string(&text).map_err(|e| RobotError::Urdf {
             path: path.to_path_buf(),
             problem: e.to_string().replace('\n', " "),
