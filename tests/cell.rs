@@ -307,3 +307,27 @@ fn systemd_analyze_verify_passes_on_every_unit_with_the_binaries_installed() {
     );
     assert_eq!(names.len(), graspcell::cell::STAGES.len() + 1, "{names:?}");
 }
+
+/// `systemd-analyze security --offline=true`: the four stages without real-time needs
+/// at an exposure of at most 2.5, the executor (UDP, CAN, real-time priority) at most
+/// 3.5 (each unit's comments say why for what remains).
+#[test]
+fn systemd_units_are_hardened_to_their_exposure_budget() {
+    for stage in graspcell::cell::STAGES {
+        let unit = format!("systemd/cell-{stage}.service");
+        let out = std::process::Command::new("/usr/bin/systemd-analyze")
+            .args(["security", "--offline=true", "--no-pager", &unit])
+            .output()
+            .expect("systemd-analyze (Debian's systemd package; .ci/setup installs it)");
+        let text = String::from_utf8_lossy(&out.stdout);
+        let exposure: f64 = text
+            .lines()
+            .find_map(|l| l.split("Overall exposure level for").nth(1))
+            .and_then(|rest| rest.split(':').nth(1))
+            .and_then(|rest| rest.split_whitespace().next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("{unit}: no exposure level in:\n{text}"));
+        let budget = if *stage == "execute" { 3.5 } else { 2.5 };
+        assert!(exposure <= budget, "{unit}: exposure {exposure} > {budget}");
+    }
+}

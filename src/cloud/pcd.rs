@@ -281,6 +281,15 @@ fn parse_header(bytes: &[u8]) -> Result<Header, (usize, String)> {
                 format!("field `{name}` has TYPE {kind:?} SIZE {size} COUNT {count}, which PCD does not allow"),
             ));
         }
+        let end = size
+            .checked_mul(count)
+            .and_then(|bytes| bytes.checked_add(offset))
+            .ok_or_else(|| {
+                (
+                    0,
+                    format!("field `{name}`: SIZE {size} x COUNT {count} overflows a point's size"),
+                )
+            })?;
         fields.push(Field {
             name,
             size,
@@ -288,7 +297,7 @@ fn parse_header(bytes: &[u8]) -> Result<Header, (usize, String)> {
             count,
             offset,
         });
-        offset += size * count;
+        offset = end;
     }
     let width = width.ok_or_else(|| missing("WIDTH"))?;
     let height = height.ok_or_else(|| missing("HEIGHT"))?;
@@ -354,7 +363,12 @@ pub fn parse_pcd(bytes: &[u8], source: &Path) -> Result<PointCloud, CloudError> 
         .map(|_| Vec::with_capacity(n.min(data.len() / 2 + 1)));
     if header.binary {
         let size = header.point_size();
-        let expected = n * size;
+        let Some(expected) = n.checked_mul(size) else {
+            return Err(err(
+                "header".to_string(),
+                format!("POINTS {n} of {size} bytes each overflows the data size"),
+            ));
+        };
         if data.len() != expected {
             let (location, problem) = if data.len() < expected {
                 let i = data.len() / size;
@@ -611,6 +625,10 @@ mod tests {
             ("noy.pcd", text.replacen("FIELDS x y", "FIELDS x q", 1).into_bytes(), "header: FIELDS has only some of [\"x\", \"y\", \"z\"]".into()),
             ("nodata.pcd", HEADER.as_bytes().to_vec(), "header: file ends after 10 header lines without a DATA line".into()),
             ("width.pcd", text.replacen("WIDTH 3", "WIDTH -3", 1).into_bytes(), "line 7: WIDTH value `-3` is not a non-negative integer".into()),
+            // Header counts whose products wrap: SIZE x COUNT (issue 21's crafted file) and
+            // POINTS x point size.
+            ("count.pcd", [&b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 8\nTYPE F F F\nCOUNT 1 1 2305843009213693952\nWIDTH 2\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA binary\n"[..], &[0u8; 16]].concat(), "header: field `z`: SIZE 8 x COUNT 2305843009213693952 overflows".into()),
+            ("cells.pcd", [&b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 4294967295\nHEIGHT 4294967295\nPOINTS 18446744065119617025\nDATA binary\n"[..], &[0u8; 12]].concat(), "header: POINTS 18446744065119617025 of 12 bytes each overflows".into()),
         ];
         for (name, bytes, expected) in cases {
             let path = dir.join(name);
