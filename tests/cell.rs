@@ -327,7 +327,7 @@ fn systemd_units_are_hardened_to_their_exposure_budget() {
             .and_then(|rest| rest.split_whitespace().next())
             .and_then(|n| n.parse().ok())
             .unwrap_or_else(|| panic!("{unit}: no exposure level in:\n{text}"));
-        let budget = if *stage == "execute" { 3.5 } else { 2.5 };
+        let budget = if stage == "execute" { 3.5 } else { 2.5 };
         assert!(exposure <= budget, "{unit}: exposure {exposure} > {budget}");
     }
 }
