@@ -129,7 +129,6 @@ mod residuals;
 mod result_file;
 mod samples;
 pub mod sim_rig;
-pub(crate) mod so3;
 mod solve;
 pub mod sphere_fit;
 pub mod synthetic;

@@ -2,7 +2,7 @@
 //! a known or unknown position on the flange.
 
 use super::motions::check_motions;
-use super::so3::project_to_so3;
+use crate::geometry::project_to_so3;
 use super::{refine, CalibError, HandEye, PointSample, Sample, Weights};
 use crate::geometry::Pose;
 use nalgebra::{

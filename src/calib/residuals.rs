@@ -1,6 +1,6 @@
 //! Residuals of `F_i Y = X C_i` per sample, and the best target pose for a camera pose.
 
-use super::so3::mean_rotation;
+use crate::geometry::mean_rotation;
 use super::{HandEye, Sample, Weights};
 use crate::geometry::Pose;
 use nalgebra::{DVector, Isometry3, Point3, Translation3, Vector3};

@@ -1,7 +1,7 @@
 //! Tsai–Lenz and Park–Martin: rotation of `X` first, then its translation.
 
 use super::motions::{motion_pairs, solve_3x3, solve_translation, MotionPair};
-use super::so3::project_to_so3;
+use crate::geometry::project_to_so3;
 use super::{CalibError, PoseSample};
 use crate::geometry::Pose;
 use nalgebra::{Isometry3, Matrix3, Quaternion, Translation3, UnitQuaternion, Vector3};

@@ -355,6 +355,29 @@ fn registration_text(r: &crate::eval::experiment::RegistrationStats) -> String {
         r.median_yaw_deg,
         r.tilt_over_30_deg,
         r.yaw_over_30_deg
+    ) + &yaw_text(r)
+}
+
+/// The yaw error distribution, and its share over 30 degrees where the handle is
+/// visible.
+fn yaw_text(r: &crate::eval::experiment::RegistrationStats) -> String {
+    use crate::eval::experiment::YAW_BIN_EDGES_DEG;
+    let mut lower = 0.0;
+    let bins: Vec<String> = YAW_BIN_EDGES_DEG
+        .iter()
+        .zip(r.yaw_bins)
+        .map(|(&edge, n)| {
+            let bin = format!("{lower:.0}-{edge:.0}: {n}");
+            lower = edge;
+            bin
+        })
+        .collect();
+    let share = 100.0 * r.handle_visible_yaw_over_30_deg as f64 / r.handle_visible.max(1) as f64;
+    format!(
+        "yaw error (deg) {}; handle visible in {} fits, yaw > 30 deg in {} ({share:.0} %)\n",
+        bins.join(", "),
+        r.handle_visible,
+        r.handle_visible_yaw_over_30_deg
     )
 }
 

@@ -172,6 +172,9 @@ pub struct FitSummary {
     /// twist of the swing-twist decomposition): where a mug's handle ends up.
     /// Irrelevant for a rotationally symmetric object (a bottle).
     pub yaw_deg: f64,
+    /// The test object's handle is in the view and the model has one
+    /// ([`super::handle`]): the yaw error is where the handle ends up.
+    pub handle_visible: bool,
 }
 
 /// Tilt and yaw (deg) of `model` relative to `object`, as [`FitSummary`] defines them.
@@ -205,6 +208,31 @@ pub struct RegistrationStats {
     /// Registered fits turned more than 30 degrees about the vertical (for a mug: the
     /// handle elsewhere).
     pub yaw_over_30_deg: usize,
+    /// Registered fits per yaw error bin: up to each of [`YAW_BIN_EDGES_DEG`].
+    pub yaw_bins: [usize; YAW_BINS],
+    /// Registered fits where the handle is visible ([`FitSummary::handle_visible`]).
+    pub handle_visible: usize,
+    /// Of those, the fits turned more than 30 degrees.
+    pub handle_visible_yaw_over_30_deg: usize,
+}
+
+/// Bins of the yaw error distribution.
+pub const YAW_BINS: usize = 6;
+
+/// Upper edges of the yaw error bins (deg); the first bin starts at 0.
+pub const YAW_BIN_EDGES_DEG: [f64; YAW_BINS] = [10.0, 20.0, 30.0, 60.0, 120.0, 180.0];
+
+/// How many of `yaw_deg` fall in each bin up to [`YAW_BIN_EDGES_DEG`].
+pub fn yaw_bins(yaw_deg: &[f64]) -> [usize; YAW_BINS] {
+    let mut bins = [0; YAW_BINS];
+    for &d in yaw_deg {
+        let k = YAW_BIN_EDGES_DEG
+            .iter()
+            .position(|&edge| d <= edge)
+            .unwrap_or(YAW_BINS - 1);
+        bins[k] += 1;
+    }
+    bins
 }
 
 impl RegistrationStats {
@@ -223,6 +251,11 @@ impl RegistrationStats {
             median_yaw_deg: crate::stats::median(&mut yaw),
             tilt_over_30_deg: tilt.iter().filter(|&&d| d > 30.0).count(),
             yaw_over_30_deg: yaw.iter().filter(|&&d| d > 30.0).count(),
+            yaw_bins: yaw_bins(&yaw),
+            handle_visible: fits().filter(|f| f.handle_visible).count(),
+            handle_visible_yaw_over_30_deg: fits()
+                .filter(|f| f.handle_visible && f.yaw_deg > 30.0)
+                .count(),
         }
     }
 }
@@ -396,6 +429,15 @@ pub fn run_target(
             return Ok(report);
         }
     };
+    let target_handle = super::handle::handle_visible(mesh, &base_from_object, &cloud);
+    let model_handle = |model: &str| {
+        train
+            .file
+            .models
+            .iter()
+            .position(|m| m.name == model)
+            .is_some_and(|i| super::handle::HandleRegion::of(&train.meshes[i]).is_some())
+    };
     report.fits = fits
         .iter()
         .map(|f| {
@@ -409,6 +451,7 @@ pub fn run_target(
                 offset_mm: dp * 1e3,
                 tilt_deg,
                 yaw_deg,
+                handle_visible: target_handle && model_handle(&f.name),
             }
         })
         .collect();
@@ -570,6 +613,7 @@ mod tests {
             offset_mm: mm,
             tilt_deg: tilt,
             yaw_deg: yaw,
+            handle_visible: tilt < 10.0,
         };
         let target = |fits: Vec<FitSummary>, unregistered: usize| TargetReport {
             target: "t".into(),
@@ -590,6 +634,11 @@ mod tests {
         assert_eq!(stats.median_tilt_deg, 2.0);
         assert_eq!(stats.median_yaw_deg, 40.0);
         assert_eq!((stats.tilt_over_30_deg, stats.yaw_over_30_deg), (1, 2));
+        assert_eq!(stats.yaw_bins, [1, 0, 0, 1, 0, 1]);
+        assert_eq!(
+            (stats.handle_visible, stats.handle_visible_yaw_over_30_deg),
+            (2, 2)
+        );
         let none = RegistrationStats::of(&[target(Vec::new(), 2)]);
         assert_eq!((none.attempted, none.registered), (2, 0));
         assert!(none.median_offset_mm.is_nan());

@@ -10,6 +10,7 @@
 //! - [`experiment`]: one target end to end (view, registration, planning per task
 //!   and kernel, simulation); registration is a [`Registrar`].
 //! - [`loo`]: leave-one-out (Figures 5 and 6); [`cross`]: cross-category (Table 1).
+//! - [`handle`]: whether a mug's handle is in the view (its yaw error is judged).
 //! - [`chart`]: the better / equal / worse bar chart as PNG.
 //! - [`registration`]: the category's registration ([`crate::register`]) as the
 //!   experiments' [`Registrar`].
@@ -20,6 +21,7 @@ pub mod chart;
 pub mod compare;
 pub mod cross;
 pub mod experiment;
+pub mod handle;
 pub mod loo;
 pub mod outcome;
 pub mod registration;

@@ -6,7 +6,8 @@ use super::experiment::Registrar;
 use crate::category::CategoryDb;
 use crate::cloud::PointCloud;
 use crate::plan::ModelFit;
-use crate::register::{fits_input, register_all, ModelSet, RegisterError, RegisterParams};
+use crate::plan::input::fits_input;
+use crate::register::{register_all, ModelSet, RegisterError, RegisterParams};
 
 /// Registration against the models of one category database.
 #[derive(Debug, Clone)]

@@ -29,6 +29,7 @@
 use super::objective::check_value;
 use super::{ExampleGrasp, ModelFit, PlanError};
 use crate::geometry::{params_from_pose, PoseJson};
+use crate::register::{ModelRegistration, RegistrationStatus};
 use serde::{Deserialize, Deserializer, Serialize};
 use std::path::Path;
 
@@ -149,6 +150,43 @@ impl FitsInput {
             .map(|u| format!("{} ({})", u.model, u.reason))
             .collect();
         failed.join(", ")
+    }
+}
+
+impl ModelFit {
+    /// The fit the planner uses from a registration (the target is in the base
+    /// frame, so `base_from_model = target_from_model`); `None` when it failed.
+    pub fn from_registration(r: &ModelRegistration) -> Option<ModelFit> {
+        match r.status {
+            RegistrationStatus::Ok => Some(ModelFit {
+                name: r.model.clone(),
+                base_from_model: r.target_from_model,
+                eps_m2: r.eps_m2,
+                sigma_m2: r.sigma_m2,
+            }),
+            RegistrationStatus::Failed(_) => None,
+        }
+    }
+}
+
+/// The planner's input from `registrations`: the fits of the models that registered,
+/// and the others with the reasons they failed.
+pub fn fits_input(registrations: &[ModelRegistration]) -> FitsInput {
+    FitsInput {
+        fits: registrations
+            .iter()
+            .filter_map(ModelFit::from_registration)
+            .collect(),
+        unregistered: registrations
+            .iter()
+            .filter_map(|r| match &r.status {
+                RegistrationStatus::Failed(why) => Some(Unregistered {
+                    model: r.model.clone(),
+                    reason: why.clone(),
+                }),
+                RegistrationStatus::Ok => None,
+            })
+            .collect(),
     }
 }
 

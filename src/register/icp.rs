@@ -3,7 +3,7 @@
 //! supplies the nearest-point lookup (a k-d tree for exact refinement, a
 //! [`super::field::NearestField`] for cheap coarse refinement).
 
-use crate::calib::so3::project_to_so3;
+use crate::geometry::project_to_so3;
 use crate::geometry::Pose;
 use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
