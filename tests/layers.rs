@@ -30,8 +30,8 @@ fn layer_table(markdown: &str) -> BTreeMap<String, (u32, String)> {
     table
 }
 
-/// The code of a source file without comments and without its inline test module
-/// (`#[cfg(test)]` then `mod name {`, to the end of the file), and the names of
+/// The code of a source file without comments and without its inline test modules
+/// (`#[cfg(test)]` then `mod name {`, to its closing brace), and the names of
 /// child modules declared test-only (`#[cfg(test)]` then `mod name;`).
 fn non_test_code(text: &str) -> (String, Vec<String>) {
     let lines: Vec<&str> = text.lines().collect();
@@ -50,7 +50,18 @@ fn non_test_code(text: &str) -> (String, Vec<String>) {
                     continue;
                 }
                 if rest.ends_with('{') {
-                    break;
+                    // Skip the module's block: up to the line where its braces balance.
+                    let mut depth = 0i64;
+                    i += 1;
+                    while i < lines.len() {
+                        depth += lines[i].matches('{').count() as i64;
+                        depth -= lines[i].matches('}').count() as i64;
+                        i += 1;
+                        if depth <= 0 {
+                            break;
+                        }
+                    }
+                    continue;
                 }
             }
         }
@@ -88,7 +99,7 @@ fn named_modules(code: &str) -> Vec<String> {
 }
 
 /// One import from a higher layer.
-#[derive(Debug, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 struct UpwardImport {
     file: String,
     from: String,
@@ -209,16 +220,16 @@ fn an_upward_import_is_found_and_test_code_and_comments_are_not() {
     let code = |text: &str| non_test_code(text).0;
     let source = "use crate::geometry::Pose;\nuse crate::plan::x;\n\
                   // crate::cell::Cell in a comment\nfn f() { crate::cell::run(); }\n\
-                  #[cfg(test)]\nmod tests {\n    use crate::cell::Cell;\n}\n";
+                  #[cfg(test)]\nmod tests {\n    use crate::cell::Cell;\n    fn f() {}\n}\n\
+                  use crate::cell::Stage;\n";
     let found = check_code("src/register/a.rs", "register", &code(source), &table).unwrap();
-    assert_eq!(
-        found,
-        vec![UpwardImport {
-            file: "src/register/a.rs".into(),
-            from: "register (1 pipeline)".into(),
-            to: "cell (2 system)".into(),
-        }]
-    );
+    let upward = UpwardImport {
+        file: "src/register/a.rs".into(),
+        from: "register (1 pipeline)".into(),
+        to: "cell (2 system)".into(),
+    };
+    // The call in `f` and the import after the test module; not the test module's.
+    assert_eq!(found, vec![upward.clone(), upward]);
     let down_only = "use crate::geometry::Pose;\n#[cfg(test)]\nmod lockstep;\n";
     assert!(check_code("f", "cell", &code(down_only), &table)
         .unwrap()

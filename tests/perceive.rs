@@ -383,7 +383,10 @@ fn a_model_at_a_wildly_different_scale_fails_alone() {
         ),
         other => panic!("{other:?}"),
     }
-    assert!(ModelFit::from_registration(&r[1]).is_none() && ModelFit::from_registration(&r[0]).is_some());
+    assert!(
+        ModelFit::from_registration(&r[1]).is_none()
+            && ModelFit::from_registration(&r[0]).is_some()
+    );
     // Leave-one-out keeps the other model's result unchanged (per-model seeds).
     let alone = register_all(&target, &set.without("mug_002_mm"), &params, 4).unwrap();
     assert_eq!(alone.len(), 1);

@@ -5,8 +5,8 @@
 use super::experiment::Registrar;
 use crate::category::CategoryDb;
 use crate::cloud::PointCloud;
-use crate::plan::ModelFit;
 use crate::plan::input::fits_input;
+use crate::plan::ModelFit;
 use crate::register::{register_all, ModelSet, RegisterError, RegisterParams};
 
 /// Registration against the models of one category database.

@@ -44,7 +44,10 @@ pub(super) fn seen(model: &PointCloud, target_from_model: &Pose) -> PointCloud {
             let bin = 0.3f32.to_radians();
             let azimuth = d.y.atan2(-d.x);
             let elevation = d.z.atan2(d.xy().norm());
-            let key = [(azimuth / bin).floor() as i32, (elevation / bin).floor() as i32];
+            let key = [
+                (azimuth / bin).floor() as i32,
+                (elevation / bin).floor() as i32,
+            ];
             (p, key, d.norm())
         })
         .collect();

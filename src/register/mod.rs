@@ -61,7 +61,6 @@ use rayon::prelude::*;
 use std::time::Instant;
 use target::{prepare_target, PreparedTarget};
 
-
 /// Errors of registration that concern the target (or the model set) as a whole;
 /// a single model's failure is a [`RegistrationStatus::Failed`] entry instead.
 #[derive(Debug, thiserror::Error)]
@@ -202,7 +201,6 @@ fn register_one(
         stages,
     }
 }
-
 
 /// Registers every model of `models` onto `target_base` (the object's points in the
 /// robot base frame) with the random stream of `seed`; one entry per model, in the

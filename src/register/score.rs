@@ -8,7 +8,6 @@ use super::RegisterParams;
 use crate::geometry::Pose;
 use nalgebra::Point3;
 
-
 /// Model points this far (m) above the target's lowest point or lower are taken
 /// as under the table's cut (segmentation removes the points near the table).
 const FLOOR_MARGIN_M: f32 = 0.002;

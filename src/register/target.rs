@@ -160,7 +160,11 @@ pub(super) mod tests {
         for i in 0..40 {
             for k in 0..50 {
                 let a = -std::f32::consts::FRAC_PI_2 + std::f32::consts::PI * i as f32 / 39.0;
-                points.push(Point3::new(0.04 * a.cos(), 0.04 * a.sin(), 0.002 * k as f32));
+                points.push(Point3::new(
+                    0.04 * a.cos(),
+                    0.04 * a.sin(),
+                    0.002 * k as f32,
+                ));
             }
         }
         PointCloud::from_points(points)
@@ -183,7 +187,11 @@ pub(super) mod tests {
         let few = PointCloud::from_points(vec![Point3::origin(); 5]);
         assert!(matches!(
             prepare(&few),
-            Some(RegisterError::TooFewPoints { got: 5, need: 30, .. })
+            Some(RegisterError::TooFewPoints {
+                got: 5,
+                need: 30,
+                ..
+            })
         ));
         // Enough points, but all in one 5 mm voxel: too few for FPFH.
         let clump = PointCloud::from_points(
