@@ -299,7 +299,12 @@ impl Logger {
                         &attempt,
                     )
                     .map_err(|e| CellError::Invalid(e.to_string()))?;
-                let grading = Grading::new(seen.grade, seen.cause, Some(seen.note.clone()))?;
+                // The lab's errors go into the trial's record with its grade.
+                let note = match &setup.lab {
+                    Some(lab) => format!("{} [lab: {}]", seen.note, lab.text()),
+                    None => seen.note.clone(),
+                };
+                let grading = Grading::new(seen.grade, seen.cause, Some(note))?;
                 Ok((grading, GradeSource::Simulated, Some(seen)))
             }
         }

@@ -9,7 +9,7 @@ use super::CellError;
 use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
 use crate::mesh::procedural::held_apart::{generate_in, Family};
-use crate::mesh::procedural::{instance_seed, Category};
+use crate::mesh::procedural::Category;
 use crate::mesh::TriMesh;
 use crate::sim::lab::LabDraw;
 use crate::sim::scene::{Scene, TableBox};
@@ -204,7 +204,11 @@ pub fn novel_object_in(
             ObjectSource::Training,
         ),
         Family::HeldApart => {
-            let seed = instance_seed(set_seed ^ 0x6865_6c64_6170_6172, index);
+            let seed = crate::mesh::procedural::held_apart::held_apart_seed(
+                category,
+                set_seed ^ 0x6865_6c64_6170_6172,
+                index,
+            );
             let kind = crate::mesh::procedural::held_apart::generate_held_apart(category, seed).2;
             let name = match kind {
                 Some(k) => format!("{}-{set_seed}-{index}", k.name()),
@@ -266,6 +270,69 @@ mod tests {
             err.contains("12.json") && err.contains("missing field"),
             "{err}"
         );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn setups_carry_the_object_source_and_the_lab_draw() {
+        let dir = std::env::temp_dir().join(format!("gc-setup-src-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let config = CellConfig::load(Path::new("robot/cell.toml")).unwrap();
+        let db = crate::category::CategoryDb::load(Path::new("db/mug")).unwrap();
+        let (object, source) = novel_object_in(Family::HeldApart, Category::Mug, 3, 0, &db);
+        assert_eq!(source, ObjectSource::HeldApart);
+        let lab = crate::sim::lab::LabErrors::default().draw(1, 2);
+        let mut setup = TrialSetup {
+            trial_id: 21,
+            category: Category::Mug,
+            object,
+            placement: Placement {
+                index: 0,
+                base_from_object: upright_pose(&config, [0.6, 0.0], 0.0),
+            },
+            campaign_id: None,
+            noise_seed: 1,
+            perception_seed: 1,
+            source,
+            lab: Some(lab),
+        };
+        setup.write(&dir).unwrap();
+        let back = TrialSetup::read(&dir, 21).unwrap().unwrap();
+        assert_eq!(back, setup);
+        let held_apart = back.mesh().unwrap();
+        assert_ne!(
+            held_apart,
+            generate_in(Family::Training, Category::Mug, 3).0
+        );
+        // The camera really stands where the lab's error puts it.
+        let calibrated = config.base_from_camera();
+        let (dp, _) =
+            crate::geometry::pose_error(&calibrated, &back.true_base_from_camera(&calibrated));
+        assert!((dp - 0.003).abs() < 1e-9, "{dp}");
+        // A user's mesh file, and a missing one named in the error.
+        let file = dir.join("mine.stl");
+        crate::mesh::write_mesh(&file, &held_apart).unwrap();
+        setup.source = ObjectSource::File {
+            path: file.clone(),
+            scale: 1.0,
+        };
+        setup.object.seed = None;
+        setup.write(&dir).unwrap();
+        let back = TrialSetup::read(&dir, 21).unwrap().unwrap();
+        assert_eq!(
+            back.mesh().unwrap().triangles.len(),
+            held_apart.triangles.len()
+        );
+        std::fs::remove_file(&file).unwrap();
+        let e = back.mesh().unwrap_err().to_string();
+        assert!(e.contains("mine.stl"), "{e}");
+        // Files written before the source and the lab existed read as training, exact.
+        let old = r#"{"trial_id": 22, "category": "mug", "object": {"name": "m", "seed": 5},
+            "placement": {"index": 0, "base_from_object": {"xyz": [0.6, 0, 0], "rpy": [0, 0, 0]}},
+            "campaign_id": null, "noise_seed": 1, "perception_seed": 1}"#;
+        std::fs::write(TrialSetup::path(&dir, 22), old).unwrap();
+        let old = TrialSetup::read(&dir, 22).unwrap().unwrap();
+        assert_eq!((old.source, old.lab), (ObjectSource::Training, None));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -4,11 +4,11 @@ use super::emit;
 use crate::cell::harness::{novel_object, placement_rng, random_placement, Cell, HarnessOptions};
 use crate::cell::plan::{Databases, METHODS};
 use crate::cell::setup::{novel_object_in, ObjectSource, TrialSetup};
-use crate::sim::lab::{LabDraw, LabErrors};
 use crate::cell::{span_ms, stop_requested, StageArgs, SYSTEM_IPC_PREFIX};
 use crate::config::CellConfig;
 use crate::ipc::{monotonic_now_ns, Domain, Stage, TrialRequest, TrialResult};
 use crate::mesh::procedural::Category;
+use crate::sim::lab::{LabDraw, LabErrors};
 use crate::trial::TrialLog;
 use anyhow::Context;
 use clap::Args;
@@ -110,7 +110,12 @@ impl World {
                 );
                 mine.into_iter()
                     .map(|o| {
-                        let min_z = o.mesh.vertices.iter().map(|v| v.z).fold(f64::INFINITY, f64::min);
+                        let min_z = o
+                            .mesh
+                            .vertices
+                            .iter()
+                            .map(|v| v.z)
+                            .fold(f64::INFINITY, f64::min);
                         (
                             crate::trial::ObjectRef {
                                 name: o.name,
@@ -127,7 +132,8 @@ impl World {
             }
             None => (0..count as u64)
                 .map(|i| {
-                    let (object, source) = novel_object_in(args.family.into(), category, seed, i, db);
+                    let (object, source) =
+                        novel_object_in(args.family.into(), category, seed, i, db);
                     (object, source, 0.0)
                 })
                 .collect(),
@@ -355,16 +361,9 @@ impl TrialLine {
             .as_ref()
             .map_or(String::new(), |c| format!(" ({c})"));
         let command_ms = self.snapshot_to_grasp_command_ms - self.perceive_ms - self.plan_ms;
-        let lab = self.lab.map_or(String::new(), |l| {
-            let (t, r) = l.hand_eye_size();
-            let rms = (l.joint_error_rad.iter().map(|e| e * e).sum::<f64>() / 7.0).sqrt();
-            format!(
-                "  [lab: hand-eye {:.1} mm / {:.2} deg, joints rms {:.1e} rad]",
-                t * 1e3,
-                r.to_degrees(),
-                rms
-            )
-        });
+        let lab = self
+            .lab
+            .map_or(String::new(), |l| format!("  [lab: {}]", l.text()));
         format!(
             "trial {} {} #{} at ({:.3}, {:.3}) yaw {:+.2} {} {}: {}{}  snapshot->grasp command {:.0} ms [perceive {:.0}, plan {:.0}, to command {:.0}; capture {:.0}]  execute {:.1} s{lab}",
             self.trial_id,

@@ -7,14 +7,16 @@ use super::plan::FitWeightName;
 use crate::category::CategoryDb;
 use crate::config::CellConfig;
 use crate::eval::chart::{write_grade_chart, write_verdict_chart};
-use crate::eval::novel::{run_novel, CategoryModels, NovelCell, NovelObject, NovelOptions, NovelReport};
-use crate::mesh::procedural::Category;
 use crate::eval::experiment::Setup;
 use crate::eval::loo::TallyRow;
+use crate::eval::novel::{
+    run_novel, CategoryModels, NovelCell, NovelObject, NovelOptions, NovelReport,
+};
 use crate::eval::{
     cross_category, leave_one_out, subset, CategoryRegistrar, CrossReport, LooReport,
     PlacementRegion, ViewKind, DEFAULT_EQUAL_TOLERANCE,
 };
+use crate::mesh::procedural::Category;
 use crate::plan::{FitWeight, Kernel, PlanOptions, Reachability};
 use crate::robot::hand::HandModel;
 use crate::robot::Robot;
@@ -100,8 +102,9 @@ impl LabArgs {
                 joint_noise_rad: self.joint_noise_rad,
             }
         };
-        lab.validate()
-            .map_err(|e| anyhow::anyhow!("--hand-eye-error-mm / --hand-eye-error-deg / --joint-noise-rad: {e}"))?;
+        lab.validate().map_err(|e| {
+            anyhow::anyhow!("--hand-eye-error-mm / --hand-eye-error-deg / --joint-noise-rad: {e}")
+        })?;
         Ok(lab)
     }
 }
@@ -264,12 +267,34 @@ pub struct ExperimentArgs {
     /// more runs and steadier shares.
     #[arg(long, default_value_t = 1)]
     pub placements: usize,
+    /// The paper's setting (issue 19): no retreat of a colliding hand, a colliding
+    /// grasp scores -1 (unstable, Table 1) and collisions are counted per method;
+    /// the paper's kernel scale s = b = 50 unless --paper-scale says otherwise.
+    #[arg(long)]
+    pub paper: bool,
     /// Write the better / equal / worse bar chart (PNG) here.
     #[arg(long)]
     pub png: Option<PathBuf>,
     /// Print JSON: the tallies, and per target its pose, fits and every run.
     #[arg(long)]
     pub json: bool,
+}
+
+/// The paper's kernel scale in its simulation (s = b = 50, mm and rad mixed).
+pub const PAPER_SIMULATION_SCALE: f64 = 50.0;
+
+impl ExperimentArgs {
+    /// The kernels' paper scale: `--paper-scale`, else with `--paper` the paper's
+    /// simulation value, else none (the cell's own scales).
+    ///
+    /// PAPER-MODE PLANNER SWITCH (issue 19 items 1 and 5): when the planner helper's
+    /// library option for the paper's setting (kernel scales, no reachability repair
+    /// for any method) is on main, `--paper` sets it here, in one place, instead of
+    /// only the scale.
+    pub fn kernel_scale(&self) -> Option<f64> {
+        self.paper_scale
+            .or(self.paper.then_some(PAPER_SIMULATION_SCALE))
+    }
 }
 
 /// Options of `cell eval loo`.
@@ -423,6 +448,7 @@ impl Cell {
             equal_tolerance: args.equal_tolerance,
             seed: args.seed,
             placements: args.placements,
+            paper: args.paper,
         })
     }
 
@@ -454,13 +480,24 @@ fn progress_bar(label: &str) -> ProgressBar {
 /// The tally rows as a text table.
 fn tally_table(rows: &[TallyRow]) -> String {
     let mut text = format!(
-        "{:<8} {:<11} {:>4} {:>7} {:>7} {:>7} {:>9} {:>9} {:>6} {:>6}\n",
-        "task", "kernel", "runs", "better", "equal", "worse", "eps", "eps 1", "FC%", "FC% 1"
+        "{:<8} {:<11} {:>4} {:>7} {:>7} {:>7} {:>9} {:>9} {:>6} {:>6} {:>5} {:>6}\n",
+        "task",
+        "kernel",
+        "runs",
+        "better",
+        "equal",
+        "worse",
+        "eps",
+        "eps 1",
+        "FC%",
+        "FC% 1",
+        "coll",
+        "coll 1"
     );
     for r in rows {
         let t = &r.tally;
         text += &format!(
-            "{:<8} {:<11} {:>4} {:>6.1}% {:>6.1}% {:>6.1}% {:>9.4} {:>9.4} {:>5.0}% {:>5.0}%\n",
+            "{:<8} {:<11} {:>4} {:>6.1}% {:>6.1}% {:>6.1}% {:>9.4} {:>9.4} {:>5.0}% {:>5.0}% {:>5} {:>6}\n",
             r.task,
             r.kernel,
             t.runs,
@@ -470,10 +507,12 @@ fn tally_table(rows: &[TallyRow]) -> String {
             t.mean_epsilon,
             t.mean_epsilon_single,
             t.force_closure_pct,
-            t.force_closure_single_pct
+            t.force_closure_single_pct,
+            r.collisions,
+            r.collisions_single
         );
     }
-    text += "(eps: mean epsilon of our grasps; eps 1 / FC% 1: of best single; FC: force closure)\n";
+    text += "(eps: mean epsilon of our grasps; eps 1 / FC% 1 / coll 1: of best single; FC: force closure; coll: open hand colliding at the grasp)\n";
     text
 }
 
@@ -525,6 +564,15 @@ fn skipped_text(targets: &[crate::eval::TargetReport]) -> String {
     text
 }
 
+/// How collisions were scored.
+fn scoring(paper: bool) -> &'static str {
+    if paper {
+        "paper (no retreat; a colliding grasp scores -1)"
+    } else {
+        "cell (a colliding hand backs off up to the database's retreat; collisions score 0)"
+    }
+}
+
 fn kernel_names(kernels: &[Kernel]) -> String {
     kernels
         .iter()
@@ -536,7 +584,7 @@ fn kernel_names(kernels: &[Kernel]) -> String {
 /// Runs `cell eval loo`.
 pub fn loo(config: &Path, args: LooArgs) -> anyhow::Result<ExitCode> {
     let e = &args.experiment;
-    let kernels = kernels(&e.kernel, e.paper_scale)?;
+    let kernels = kernels(&e.kernel, e.kernel_scale())?;
     let mut db = load_category_db(&e.db_dir, &args.category)?;
     if !args.models.is_empty() {
         db = subset(&db, &args.models)?;
@@ -614,8 +662,11 @@ fn loo_text(r: &LooReport, seconds: f64, png: Option<&Path>) -> String {
         r.seed
     );
     text += &format!(
-        "{} runs simulated in {:.1} s; equal within epsilon {}\n",
-        r.runs, seconds, r.equal_tolerance
+        "{} runs simulated in {:.1} s; equal within epsilon {}; scoring: {}\n",
+        r.runs,
+        seconds,
+        r.equal_tolerance,
+        scoring(r.paper)
     );
     text += &common_text(&r.registration, &r.rows, &r.targets, png);
     text
@@ -624,7 +675,7 @@ fn loo_text(r: &LooReport, seconds: f64, png: Option<&Path>) -> String {
 /// Runs `cell eval cross`.
 pub fn cross(config: &Path, args: CrossArgs) -> anyhow::Result<ExitCode> {
     let e = &args.experiment;
-    let kernels = kernels(&e.kernel, e.paper_scale)?;
+    let kernels = kernels(&e.kernel, e.kernel_scale())?;
     let train = load_category_db(&e.db_dir, &args.train)?;
     let test = load_category_db(&e.db_dir, &args.test)?;
     let cell = Cell::load(config, e.reach)?;
@@ -675,10 +726,11 @@ fn cross_text(r: &CrossReport, seconds: f64, png: Option<&Path>) -> String {
         r.seed
     );
     text += &format!(
-        "{} targets ({} placements each) in {:.1} s\n",
+        "{} targets ({} placements each) in {:.1} s; scoring: {}\n",
         r.targets.len(),
         r.placements,
-        seconds
+        seconds,
+        scoring(r.paper)
     );
     text += &format!("{:<12} {:<6}", "test object", "task");
     for k in &r.kernels {
@@ -756,7 +808,10 @@ pub fn novel(config_path: &Path, args: NovelArgs) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
     let mut models = std::collections::HashMap::new();
     for category in categories {
-        models.insert(category, CategoryModels::load(&mut dbs, category, &args.tasks)?);
+        models.insert(
+            category,
+            CategoryModels::load(&mut dbs, category, &args.tasks)?,
+        );
     }
     let robot = std::sync::Arc::new(Robot::load(&config)?);
     let hand = HandModel::load(&config)?;
@@ -831,18 +886,35 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
     text += &format!(
         "{}; drawn hand-eye error {:.1} mm / {:.2} deg; approach to contact: {}\n",
         r.lab.text(),
-        nalgebra::Vector3::new(r.hand_eye_error[0], r.hand_eye_error[1], r.hand_eye_error[2])
-            .norm()
+        nalgebra::Vector3::new(
+            r.hand_eye_error[0],
+            r.hand_eye_error[1],
+            r.hand_eye_error[2]
+        )
+        .norm()
             * 1e3,
-        nalgebra::Vector3::new(r.hand_eye_error[3], r.hand_eye_error[4], r.hand_eye_error[5])
-            .norm()
-            .to_degrees(),
+        nalgebra::Vector3::new(
+            r.hand_eye_error[3],
+            r.hand_eye_error[4],
+            r.hand_eye_error[5]
+        )
+        .norm()
+        .to_degrees(),
         if r.approach_to_contact { "on" } else { "off" }
     );
     text += &format!("{} trials in {:.1} s\n", r.trials.len(), seconds);
     text += &format!(
         "{:<12} {:<12} {:>6} {:>8} {:>8} {:>8} {:>6} {:>5} {:>7}  {}\n",
-        "task", "method", "trials", "success", "partial", "failure", "FC%", "coll", "eps", "failure causes"
+        "task",
+        "method",
+        "trials",
+        "success",
+        "partial",
+        "failure",
+        "FC%",
+        "coll",
+        "eps",
+        "failure causes"
     );
     for row in &r.rows {
         let causes: Vec<String> = row.causes.iter().map(|(c, n)| format!("{c} {n}")).collect();

@@ -52,7 +52,11 @@ pub fn grade_chart(title: &str, rows: &[super::novel::NovelRow]) -> (Canvas, Vec
             if r.trials == 0 {
                 vec![None; 3]
             } else {
-                vec![Some(r.success_pct), Some(r.partial_pct), Some(r.failure_pct)]
+                vec![
+                    Some(r.success_pct),
+                    Some(r.partial_pct),
+                    Some(r.failure_pct),
+                ]
             }
         })
         .collect();
@@ -109,11 +113,15 @@ mod tests {
                     ],
                     0.01,
                 ),
+                collisions: 0,
+                collisions_single: 0,
             },
             TallyRow {
                 task: "top".into(),
                 kernel: "gaussian",
                 tally: Tally::default(),
+                collisions: 0,
+                collisions_single: 0,
             },
         ];
         let (_, bars) = verdict_chart("TEST", &rows);

@@ -152,8 +152,13 @@ pub struct NovelOptions {
     /// The lab's errors.
     pub lab: LabErrors,
     /// The paper's setting: no approach to contact (the hand closes at the planned
-    /// pose) and collisions of the open hand counted as failures. Today's chain has
-    /// no approach to contact either way (see [`executed_palm`]).
+    /// pose, see [`executed_palm`]) and collisions of the open hand fail (the
+    /// observer's rule) and are counted per method.
+    ///
+    /// PAPER-MODE PLANNER SWITCH (issue 19 item 5): the paper's kernel scales and
+    /// reachability treatment are the planner helper's library option; when it is on
+    /// main, [`run_novel`] passes `paper` to the planning here. Until then the plan
+    /// stage's planning runs with each method's default kernel in both settings.
     pub paper: bool,
 }
 
@@ -365,7 +370,10 @@ impl CategoryModels {
             category: category.to_string(),
             problem,
         };
-        let db = dbs.get(category.name()).map_err(|e| fail(e.to_string()))?.clone();
+        let db = dbs
+            .get(category.name())
+            .map_err(|e| fail(e.to_string()))?
+            .clone();
         let models = ModelSet::from_category(&db, &RegisterParams::default())
             .map_err(|e| fail(format!("models: {e}")))?;
         let tasks: Vec<String> = db
@@ -471,10 +479,12 @@ pub fn run_novel(
         .map_err(|e| bad("lab errors", &e.to_string()))?;
     let mut tasks: Vec<String> = Vec::new();
     for object in objects {
-        let m = models.get(&object.category).ok_or_else(|| NovelError::Category {
-            category: object.category.to_string(),
-            problem: "no database loaded".into(),
-        })?;
+        let m = models
+            .get(&object.category)
+            .ok_or_else(|| NovelError::Category {
+                category: object.category.to_string(),
+                problem: "no database loaded".into(),
+            })?;
         for t in &m.tasks {
             let label = task_label(object.category, t);
             if !tasks.contains(&label) {
@@ -483,7 +493,10 @@ pub fn run_novel(
         }
     }
     if tasks.is_empty() {
-        return Err(bad("tasks", "no task of the objects' categories was asked for"));
+        return Err(bad(
+            "tasks",
+            "no task of the objects' categories was asked for",
+        ));
     }
     if let Some(p) = progress {
         let steps: u64 = objects
@@ -549,14 +562,8 @@ pub fn run_novel(
             for task in &category.tasks {
                 for method in &options.methods {
                     let started = std::time::Instant::now();
-                    let request = TrialRequest::new(
-                        unit,
-                        0,
-                        object.category.name(),
-                        task,
-                        method,
-                    )
-                    .map_err(|e| object_fail(e.to_string()))?;
+                    let request = TrialRequest::new(unit, 0, object.category.name(), task, method)
+                        .map_err(|e| object_fail(e.to_string()))?;
                     // 3. Planning as the plan stage does it.
                     let planned = plan_trial(cell.config, &cell.robot, dbs, &request, &fits)
                         .and_then(|mut g| {
@@ -712,8 +719,14 @@ mod tests {
         let rows = novel_rows(&trials, &tasks, &methods);
         assert_eq!(rows.len(), 6, "2 tasks x 2 methods, then all x 2");
         let top = &rows[0];
-        assert_eq!((top.task.as_str(), top.method.as_str()), ("mug top", "laplace"));
-        assert_eq!((top.trials, top.success, top.partial, top.failure), (3, 1, 1, 1));
+        assert_eq!(
+            (top.task.as_str(), top.method.as_str()),
+            ("mug top", "laplace")
+        );
+        assert_eq!(
+            (top.trials, top.success, top.partial, top.failure),
+            (3, 1, 1, 1)
+        );
         assert_eq!(top.collisions, 1);
         assert!((top.force_closure_pct - 200.0 / 3.0).abs() < 1e-9);
         assert_eq!(top.causes.get("shape-dissimilarity"), Some(&2));

@@ -49,7 +49,9 @@ pub enum ObjectsError {
         path: PathBuf,
     },
     /// An entry names a category the cell has no model for.
-    #[error("{path}: object {file}: unknown category {category:?} (use mug, bottle, hammer or knife)")]
+    #[error(
+        "{path}: object {file}: unknown category {category:?} (use mug, bottle, hammer or knife)"
+    )]
     UnknownCategory {
         /// The manifest.
         path: PathBuf,
@@ -208,7 +210,10 @@ mod tests {
         // Malformed TOML.
         let dir = fixture("toml", "[[object]\nfile = \"mug.stl\"\n");
         let e = load_objects(&dir).unwrap_err().to_string();
-        assert!(e.contains(&manifest(&dir)) && e.contains("malformed"), "{e}");
+        assert!(
+            e.contains(&manifest(&dir)) && e.contains("malformed"),
+            "{e}"
+        );
         // A field the manifest does not know.
         let dir = fixture(
             "field",

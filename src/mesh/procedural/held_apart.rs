@@ -262,6 +262,17 @@ fn bottle(
     })
 }
 
+/// The kind of the held-apart instance of `category` from `seed` (`None` for
+/// hammers and knives), without building it.
+pub fn held_apart_kind(category: Category, seed: u64) -> Option<Kind> {
+    let kinds = Kind::of(category);
+    if kinds.is_empty() {
+        return None;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    Some(kinds[rng.gen_range(0..kinds.len())])
+}
+
 /// A held-apart instance of `category` from `seed`: mesh, parameters and kind
 /// (`None` for hammers and knives, which come from the training generator).
 pub fn generate_held_apart(category: Category, seed: u64) -> (TriMesh, Params, Option<Kind>) {
@@ -274,6 +285,23 @@ pub fn generate_held_apart(category: Category, seed: u64) -> (TriMesh, Params, O
     let kind = kinds[rng.gen_range(0..kinds.len())];
     let params = kind.sample(&mut rng);
     (params.build(), params, Some(kind))
+}
+
+/// The seed of held-apart instance `index` of the set `set_seed`: the first seed of
+/// the set's stream whose kind is the `index`-th in turn, so that any run of
+/// consecutive instances covers the kinds evenly (10 mugs: every kind once or
+/// twice).
+pub fn held_apart_seed(category: Category, set_seed: u64, index: u64) -> u64 {
+    let kinds = Kind::of(category);
+    let first = super::instance_seed(set_seed, index);
+    if kinds.is_empty() {
+        return first;
+    }
+    let want = kinds[(index % kinds.len() as u64) as usize];
+    (0..)
+        .map(|k| super::instance_seed(set_seed, index + k * 1_000_003))
+        .find(|&s| held_apart_kind(category, s) == Some(want))
+        .unwrap_or(first)
 }
 
 /// An instance of `category` from `seed` in `family`: mesh and parameters.
@@ -380,6 +408,22 @@ mod tests {
         assert_eq!(a, generate(Category::Hammer, 9).0);
         let (b, _) = generate_in(Family::Training, Category::Mug, 9);
         assert_eq!(b, generate(Category::Mug, 9).0);
+    }
+
+    #[test]
+    fn consecutive_instances_cover_the_kinds_evenly() {
+        let kinds: Vec<Option<Kind>> = (0..12)
+            .map(|i| held_apart_kind(Category::Mug, held_apart_seed(Category::Mug, 4, i)))
+            .collect();
+        for (i, k) in kinds.iter().enumerate() {
+            assert_eq!(*k, Some(Kind::MUGS[i % 6]), "instance {i}");
+        }
+        let bottles: std::collections::HashSet<_> = (0..4)
+            .map(|i| {
+                generate_held_apart(Category::Bottle, held_apart_seed(Category::Bottle, 4, i)).2
+            })
+            .collect();
+        assert_eq!(bottles.len(), 4);
     }
 
     #[test]
