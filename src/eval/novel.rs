@@ -421,7 +421,7 @@ pub const APPROACH_TO_CONTACT: bool = false;
 
 /// Seeds of one object placement: placement, camera noise, registration, joints.
 fn unit_seeds(seed: u64, unit: u64) -> [u64; 4] {
-    [0, 1, 2, 3].map(|k| instance_seed(seed ^ 0x6e6f_7665_6c, unit * 4 + k))
+    [0, 1, 2, 3].map(|k| instance_seed(seed ^ 0x006e_6f76_656c, unit * 4 + k))
 }
 
 /// The cell's placement area ([`crate::cell::harness::PLACEMENT_X_M`], `_Y_M`).

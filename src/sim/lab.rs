@@ -100,7 +100,7 @@ impl LabErrors {
     /// The hand–eye error of a campaign seeded `seed`: exactly the configured sizes,
     /// in a random direction and about a random axis.
     pub fn draw_hand_eye(&self, seed: u64) -> [f64; 6] {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6861_6e64_6579_65);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0068_616e_6465_7965);
         let t: [f64; 3] = UnitSphere.sample(&mut rng);
         let r: [f64; 3] = UnitSphere.sample(&mut rng);
         let (dt, dr) = (self.hand_eye_translation_m, self.hand_eye_rotation_rad);
