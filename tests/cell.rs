@@ -75,6 +75,8 @@ impl Fixture {
             campaign_id: campaign.map(str::to_string),
             noise_seed: i,
             perception_seed: i,
+            source: graspcell::cell::setup::ObjectSource::Training,
+            lab: None,
         }
     }
 

@@ -206,6 +206,7 @@ fn loo_is_seeded() {
         equal_tolerance: 0.01,
         seed,
         placements: 1,
+        paper: false,
     };
     let kernels = [Kernel::LAPLACE_DEFAULT];
     let a = leave_one_out(&setup(3), &db, &[], &kernels, &registrar, None).unwrap();
@@ -332,4 +333,97 @@ fn bad_requests_are_one_clear_error() {
     ]);
     assert!(e.contains("no models") && e.contains("mug"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn objects_dirs_with_a_bad_manifest_mesh_or_category_are_one_error_naming_the_file() {
+    let dir = temp_dir("eval", "objects");
+    let manifest = dir.join("objects.toml");
+    let mesh = root().join("db/mug/models/mug_000.ply");
+    std::fs::copy(&mesh, dir.join("mine.ply")).unwrap();
+    let dir_arg = dir.to_string_lossy().into_owned();
+    let cases = [
+        (
+            "[[object]\nfile = \"mine.ply\"\n",
+            "malformed",
+            manifest.clone(),
+        ),
+        (
+            "[[object]]\nfile = \"gone.ply\"\ncategory = \"mug\"\n",
+            "does not exist",
+            dir.join("gone.ply"),
+        ),
+        (
+            "[[object]]\nfile = \"mine.ply\"\ncategory = \"teapot\"\n",
+            "\"teapot\"",
+            manifest.clone(),
+        ),
+    ];
+    for (text, what, file) in cases {
+        std::fs::write(&manifest, text).unwrap();
+        for command in [
+            vec!["eval", "novel", "--objects", &dir_arg],
+            vec![
+                "campaign",
+                "--objects",
+                &dir_arg,
+                "--log",
+                "/nonexistent/x.sqlite",
+            ],
+            vec!["demo", "--objects", &dir_arg],
+        ] {
+            let e = error_of(&command);
+            assert!(
+                e.contains(what) && e.contains(&file.display().to_string()),
+                "{command:?}: {e}"
+            );
+            assert_eq!(e.lines().count(), 1, "{e}");
+        }
+    }
+    // The old count of `cell campaign --objects N` is now --instances: say so.
+    let e = error_of(&["campaign", "--objects", "6"]);
+    assert!(e.contains("--instances"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn novel_runs_the_chain_and_every_trial_is_graded() {
+    let (ok, stdout, stderr) = cell(&[
+        "eval",
+        "novel",
+        "--categories",
+        "mug",
+        "--instances",
+        "1",
+        "--placements",
+        "1",
+        "--tasks",
+        "top",
+        "--methods",
+        "best-single,laplace",
+        "--json",
+    ]);
+    assert!(ok, "{stderr}");
+    let report: Value = serde_json::from_str(&stdout).unwrap();
+    let trials = report["trials"].as_array().unwrap();
+    assert_eq!(
+        trials.len(),
+        2,
+        "1 object x 1 placement x 1 task x 2 methods"
+    );
+    for t in trials {
+        let grade = t["grade"].as_str().unwrap();
+        assert!(["success", "partial", "failure"].contains(&grade), "{t}");
+        assert_eq!(t["task"], "top");
+        // A held-apart mug, the lab's default errors.
+        assert_eq!(t["origin"], "held-apart");
+    }
+    assert!((f(&report["lab"]["hand_eye_translation_m"]) - 0.003).abs() < 1e-12);
+    let rows = report["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 2, "one task: no `all` rows");
+    for row in rows {
+        let n = |k: &str| row[k].as_u64().unwrap();
+        assert_eq!(n("trials"), 1);
+        assert_eq!(n("success") + n("partial") + n("failure"), 1);
+    }
 }

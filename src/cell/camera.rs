@@ -73,7 +73,13 @@ impl CameraBackend {
                         problem: "missing: the simulated camera renders the trial's setup".into(),
                     })?;
                 let scene = setup.scene(config)?;
-                Ok(camera.render(&scene, setup.noise_seed).to_cloud())
+                // The lab's hand–eye error: the camera really stands elsewhere than
+                // the calibrated mount the header (and perception) use.
+                let real = DepthCamera {
+                    base_from_camera: setup.true_base_from_camera(&camera.base_from_camera),
+                    ..*camera
+                };
+                Ok(real.render(&scene, setup.noise_seed).to_cloud())
             }
             CameraBackend::Replay { dir, served } => {
                 let file = replay_file(dir, trial_id, *served)?;

@@ -134,7 +134,7 @@ fn ipc_grade(grade: Grade) -> IpcGrade {
 }
 
 /// The trial log's cause of a plan's failure.
-fn plan_cause(cause: IpcCause) -> FailureCause {
+pub fn plan_cause(cause: IpcCause) -> FailureCause {
     match cause {
         IpcCause::Reachability => FailureCause::Reachability,
         IpcCause::RegistrationFailure => FailureCause::Registration,
@@ -273,15 +273,38 @@ impl Logger {
                     path: TrialSetup::path(&self.options.run_dir, setup.trial_id),
                     problem: e.to_string(),
                 })?;
+                // The lab's execution error: the arm stands at the closing joints
+                // plus the trial's joint errors.
+                let attempt = match (attempt, setup.lab, trial.closing_joints) {
+                    (
+                        Attempt::Executed {
+                            spread_rad,
+                            best_fit,
+                            ..
+                        },
+                        Some(lab),
+                        Some(q),
+                    ) => Attempt::Executed {
+                        base_from_palm: self.robot.arm().palm(&lab.executed_joints(&q)),
+                        spread_rad,
+                        best_fit,
+                    },
+                    (attempt, _, _) => attempt,
+                };
                 let seen = observer
                     .grade(
                         &setup.object.name,
-                        &setup.mesh(),
+                        &setup.mesh()?,
                         &base_from_object,
                         &attempt,
                     )
                     .map_err(|e| CellError::Invalid(e.to_string()))?;
-                let grading = Grading::new(seen.grade, seen.cause, Some(seen.note.clone()))?;
+                // The lab's errors go into the trial's record with its grade.
+                let note = match &setup.lab {
+                    Some(lab) => format!("{} [lab: {}]", seen.note, lab.text()),
+                    None => seen.note.clone(),
+                };
+                let grading = Grading::new(seen.grade, seen.cause, Some(note))?;
                 Ok((grading, GradeSource::Simulated, Some(seen)))
             }
         }

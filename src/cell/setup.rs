@@ -8,8 +8,10 @@
 use super::CellError;
 use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
-use crate::mesh::procedural::{generate, Category};
+use crate::mesh::procedural::held_apart::{generate_in, Family};
+use crate::mesh::procedural::Category;
 use crate::mesh::TriMesh;
+use crate::sim::lab::LabDraw;
 use crate::sim::scene::{Scene, TableBox};
 use crate::trial::{ObjectRef, Placement};
 use serde::{Deserialize, Serialize};
@@ -33,6 +35,52 @@ pub struct TrialSetup {
     pub noise_seed: u64,
     /// Seed of perception's random choices (RANSAC).
     pub perception_seed: u64,
+    /// Where the object's mesh comes from (default, for older files: the training
+    /// generator).
+    #[serde(default)]
+    pub source: ObjectSource,
+    /// The lab's errors in this trial: the camera's true mount and the executed
+    /// joints' errors ([`crate::sim::lab`]); `None`: an exact cell.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lab: Option<LabDraw>,
+}
+
+/// Where a trial's object mesh comes from.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum ObjectSource {
+    /// The training generator, from the object's seed (the databases' family).
+    #[default]
+    Training,
+    /// The held-apart family ([`crate::mesh::procedural::held_apart`]), from the
+    /// object's seed.
+    HeldApart,
+    /// A user's mesh file (OBJ, STL, PLY), scaled to metres.
+    File {
+        /// The mesh file.
+        path: PathBuf,
+        /// Metres per file unit.
+        scale: f64,
+    },
+}
+
+impl ObjectSource {
+    /// The procedural family, `None` for a file.
+    pub fn family(&self) -> Option<Family> {
+        match self {
+            ObjectSource::Training => Some(Family::Training),
+            ObjectSource::HeldApart => Some(Family::HeldApart),
+            ObjectSource::File { .. } => None,
+        }
+    }
+
+    /// The source of a procedural family.
+    pub fn of_family(family: Family) -> ObjectSource {
+        match family {
+            Family::Training => ObjectSource::Training,
+            Family::HeldApart => ObjectSource::HeldApart,
+        }
+    }
 }
 
 impl TrialSetup {
@@ -83,7 +131,7 @@ impl TrialSetup {
             path: TrialSetup::path(run_dir, trial_id),
             problem: e.to_string(),
         })?;
-        if setup.object.seed.is_none() {
+        if setup.object.seed.is_none() && setup.source.family().is_some() {
             return Err(CellError::Setup {
                 path: TrialSetup::path(run_dir, trial_id),
                 problem: "the object has no generator seed".into(),
@@ -100,8 +148,26 @@ impl TrialSetup {
     }
 
     /// The object's true mesh (object frame).
-    pub fn mesh(&self) -> TriMesh {
-        generate(self.category, self.object.seed.unwrap_or(0)).0
+    pub fn mesh(&self) -> Result<TriMesh, CellError> {
+        match &self.source {
+            ObjectSource::File { path, scale } => {
+                crate::mesh::load_mesh(path, *scale).map_err(|e| CellError::Setup {
+                    path: path.clone(),
+                    problem: e.to_string(),
+                })
+            }
+            source => {
+                let family = source.family().unwrap_or(Family::Training);
+                Ok(generate_in(family, self.category, self.object.seed.unwrap_or(0)).0)
+            }
+        }
+    }
+
+    /// The camera's true mount given the calibrated one the cell uses (they differ
+    /// by the lab's hand–eye error).
+    pub fn true_base_from_camera(&self, calibrated: &Pose) -> Pose {
+        self.lab
+            .map_or(*calibrated, |lab| lab.true_base_from_camera(calibrated))
     }
 
     /// The scene the camera sees: the configured table and the object.
@@ -112,12 +178,50 @@ impl TrialSetup {
             problem: e.to_string(),
         })?;
         scene
-            .add(&self.object.name, self.mesh(), pose)
+            .add(&self.object.name, self.mesh()?, pose)
             .map_err(|e| CellError::Setup {
                 path: PathBuf::from(format!("trial {}", self.trial_id)),
                 problem: e.to_string(),
             })?;
         Ok(scene)
+    }
+}
+
+/// A novel object of `category` from `family`: instance `index` of the set
+/// `set_seed`. Training-family instances are checked not to be one of the
+/// database's models ([`super::harness::novel_object`]); held-apart instances lie
+/// outside the training ranges by construction.
+pub fn novel_object_in(
+    family: Family,
+    category: Category,
+    set_seed: u64,
+    index: u64,
+    db: &crate::category::CategoryDb,
+) -> (ObjectRef, ObjectSource) {
+    match family {
+        Family::Training => (
+            super::harness::novel_object(category, set_seed, index, db),
+            ObjectSource::Training,
+        ),
+        Family::HeldApart => {
+            let seed = crate::mesh::procedural::held_apart::held_apart_seed(
+                category,
+                set_seed ^ 0x6865_6c64_6170_6172,
+                index,
+            );
+            let kind = crate::mesh::procedural::held_apart::generate_held_apart(category, seed).2;
+            let name = match kind {
+                Some(k) => format!("{}-{set_seed}-{index}", k.name()),
+                None => format!("{category}-novel-{set_seed}-{index}"),
+            };
+            (
+                ObjectRef {
+                    name,
+                    seed: Some(seed),
+                },
+                ObjectSource::HeldApart,
+            )
+        }
     }
 }
 
@@ -152,6 +256,8 @@ mod tests {
             campaign_id: Some("c".into()),
             noise_seed: 5,
             perception_seed: 6,
+            source: ObjectSource::Training,
+            lab: None,
         };
         let path = setup.write(&dir).unwrap();
         assert_eq!(TrialSetup::read(&dir, 12).unwrap(), Some(setup.clone()));
@@ -164,6 +270,69 @@ mod tests {
             err.contains("12.json") && err.contains("missing field"),
             "{err}"
         );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn setups_carry_the_object_source_and_the_lab_draw() {
+        let dir = std::env::temp_dir().join(format!("gc-setup-src-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let config = CellConfig::load(Path::new("robot/cell.toml")).unwrap();
+        let db = crate::category::CategoryDb::load(Path::new("db/mug")).unwrap();
+        let (object, source) = novel_object_in(Family::HeldApart, Category::Mug, 3, 0, &db);
+        assert_eq!(source, ObjectSource::HeldApart);
+        let lab = crate::sim::lab::LabErrors::default().draw(1, 2);
+        let mut setup = TrialSetup {
+            trial_id: 21,
+            category: Category::Mug,
+            object,
+            placement: Placement {
+                index: 0,
+                base_from_object: upright_pose(&config, [0.6, 0.0], 0.0),
+            },
+            campaign_id: None,
+            noise_seed: 1,
+            perception_seed: 1,
+            source,
+            lab: Some(lab),
+        };
+        setup.write(&dir).unwrap();
+        let back = TrialSetup::read(&dir, 21).unwrap().unwrap();
+        assert_eq!(back, setup);
+        let held_apart = back.mesh().unwrap();
+        assert_ne!(
+            held_apart,
+            generate_in(Family::Training, Category::Mug, 3).0
+        );
+        // The camera really stands where the lab's error puts it.
+        let calibrated = config.base_from_camera();
+        let (dp, _) =
+            crate::geometry::pose_error(&calibrated, &back.true_base_from_camera(&calibrated));
+        assert!((dp - 0.003).abs() < 1e-9, "{dp}");
+        // A user's mesh file, and a missing one named in the error.
+        let file = dir.join("mine.stl");
+        crate::mesh::write_mesh(&file, &held_apart).unwrap();
+        setup.source = ObjectSource::File {
+            path: file.clone(),
+            scale: 1.0,
+        };
+        setup.object.seed = None;
+        setup.write(&dir).unwrap();
+        let back = TrialSetup::read(&dir, 21).unwrap().unwrap();
+        assert_eq!(
+            back.mesh().unwrap().triangles.len(),
+            held_apart.triangles.len()
+        );
+        std::fs::remove_file(&file).unwrap();
+        let e = back.mesh().unwrap_err().to_string();
+        assert!(e.contains("mine.stl"), "{e}");
+        // Files written before the source and the lab existed read as training, exact.
+        let old = r#"{"trial_id": 22, "category": "mug", "object": {"name": "m", "seed": 5},
+            "placement": {"index": 0, "base_from_object": {"xyz": [0.6, 0, 0], "rpy": [0, 0, 0]}},
+            "campaign_id": null, "noise_seed": 1, "perception_seed": 1}"#;
+        std::fs::write(TrialSetup::path(&dir, 22), old).unwrap();
+        let old = TrialSetup::read(&dir, 22).unwrap().unwrap();
+        assert_eq!((old.source, old.lab), (ObjectSource::Training, None));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

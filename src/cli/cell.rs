@@ -3,11 +3,12 @@
 use super::emit;
 use crate::cell::harness::{novel_object, placement_rng, random_placement, Cell, HarnessOptions};
 use crate::cell::plan::{Databases, METHODS};
-use crate::cell::setup::TrialSetup;
+use crate::cell::setup::{novel_object_in, ObjectSource, TrialSetup};
 use crate::cell::{span_ms, stop_requested, StageArgs, SYSTEM_IPC_PREFIX};
 use crate::config::CellConfig;
 use crate::ipc::{monotonic_now_ns, Domain, Stage, TrialRequest, TrialResult};
 use crate::mesh::procedural::Category;
+use crate::sim::lab::{LabDraw, LabErrors};
 use crate::trial::TrialLog;
 use anyhow::Context;
 use clap::Args;
@@ -51,12 +52,111 @@ pub struct TrialKind {
     /// Object category (a database under --db-dir).
     #[arg(long, default_value = "mug")]
     pub category: String,
-    /// Task (`top`, `side`, `handle` for mugs).
-    #[arg(long, default_value = "top")]
-    pub task: String,
     /// Directory of the category databases.
     #[arg(long, default_value = "db")]
     pub db_dir: PathBuf,
+}
+
+/// The simulated world of a demo or campaign: which novel objects, and the lab's
+/// errors.
+#[derive(Debug, Clone, Args)]
+pub struct WorldArgs {
+    /// Your own objects: a directory of OBJ/STL/PLY meshes with an `objects.toml`
+    /// naming each file's category and scale (those of --category are used).
+    #[arg(long, value_name = "DIR")]
+    pub objects: Option<PathBuf>,
+    /// Where procedural novel objects come from.
+    #[arg(long, value_enum, default_value_t = super::eval::FamilyChoice::HeldApart)]
+    pub family: super::eval::FamilyChoice,
+    /// The lab's errors.
+    #[command(flatten)]
+    pub lab: super::eval::LabArgs,
+}
+
+/// The novel objects of a demo or campaign, in order: each with its source and
+/// the height (m) of its lowest point in its own frame (placements stand it on the
+/// table).
+struct World {
+    objects: Vec<(crate::trial::ObjectRef, ObjectSource, f64)>,
+    lab: LabErrors,
+}
+
+impl World {
+    /// `count` novel objects of `category` (the user's: all of that category).
+    fn new(
+        args: &WorldArgs,
+        category: Category,
+        count: usize,
+        seed: u64,
+        db: &crate::category::CategoryDb,
+    ) -> anyhow::Result<World> {
+        let lab = args.lab.errors()?;
+        let objects = match &args.objects {
+            Some(dir) => {
+                if !dir.is_dir() && dir.to_string_lossy().parse::<u64>().is_ok() {
+                    anyhow::bail!(
+                        "--objects {}: takes a directory of meshes; the number of novel objects is --instances",
+                        dir.display()
+                    );
+                }
+                let mine: Vec<_> = crate::eval::objects::load_objects(dir)?
+                    .into_iter()
+                    .filter(|o| o.category == category)
+                    .collect();
+                anyhow::ensure!(
+                    !mine.is_empty(),
+                    "{}: no object of category {category}",
+                    dir.join(crate::eval::objects::MANIFEST_FILE).display()
+                );
+                mine.into_iter()
+                    .map(|o| {
+                        let min_z = o
+                            .mesh
+                            .vertices
+                            .iter()
+                            .map(|v| v.z)
+                            .fold(f64::INFINITY, f64::min);
+                        (
+                            crate::trial::ObjectRef {
+                                name: o.name,
+                                seed: None,
+                            },
+                            ObjectSource::File {
+                                path: o.path,
+                                scale: o.scale,
+                            },
+                            min_z,
+                        )
+                    })
+                    .collect()
+            }
+            None => (0..count as u64)
+                .map(|i| {
+                    let (object, source) =
+                        novel_object_in(args.family.into(), category, seed, i, db);
+                    (object, source, 0.0)
+                })
+                .collect(),
+        };
+        Ok(World { objects, lab })
+    }
+
+    /// Object `i` (cycling through the user's objects).
+    fn object(&self, i: usize) -> &(crate::trial::ObjectRef, ObjectSource, f64) {
+        &self.objects[i % self.objects.len()]
+    }
+
+    /// The lab's draw of a trial: the campaign's hand–eye error and the trial's
+    /// joint errors; `None` for an exact cell.
+    fn draw(&self, campaign_seed: u64, trial_seed: u64) -> Option<LabDraw> {
+        (self.lab != LabErrors::NONE).then(|| self.lab.draw(campaign_seed, trial_seed))
+    }
+}
+
+/// `placement` with the object's lowest point (`min_z` in its frame) on the table.
+fn on_table(mut placement: crate::trial::Placement, min_z: f64) -> crate::trial::Placement {
+    placement.base_from_object.xyz[2] -= min_z;
+    placement
 }
 
 /// Options of `cell demo`.
@@ -67,6 +167,12 @@ pub struct DemoArgs {
     pub trials: usize,
     #[command(flatten)]
     pub kind: TrialKind,
+    /// Task (`top`, `side`, `handle` for mugs).
+    #[arg(long, default_value = "top")]
+    pub task: String,
+    /// The novel objects and the lab's errors.
+    #[command(flatten)]
+    pub world: WorldArgs,
     /// Planning method: laplace, gaussian, gaussian-r or best-single.
     #[arg(long, default_value = "laplace")]
     pub method: String,
@@ -90,9 +196,16 @@ pub struct DemoArgs {
 pub struct CampaignArgs {
     #[command(flatten)]
     pub kind: TrialKind,
-    /// Novel objects.
+    /// Tasks, comma-separated; each is its own campaign and report row (default:
+    /// every task of the category's database, e.g. top, side and handle for mugs).
+    #[arg(long = "task", value_delimiter = ',')]
+    pub tasks: Vec<String>,
+    /// The novel objects and the lab's errors.
+    #[command(flatten)]
+    pub world: WorldArgs,
+    /// Novel objects (procedural; with --objects DIR, the directory's objects).
     #[arg(long, default_value_t = 6)]
-    pub objects: usize,
+    pub instances: usize,
     /// Placements per object.
     #[arg(long, default_value_t = 5)]
     pub placements: u32,
@@ -175,8 +288,12 @@ pub struct TrialLine {
     pub placement: u32,
     /// Object position x y (m) and yaw (rad).
     pub placement_xy_yaw: [f64; 3],
+    /// Task.
+    pub task: String,
     /// Method.
     pub method: String,
+    /// The lab's errors in this trial (hand–eye error and joint errors).
+    pub lab: Option<LabDraw>,
     /// Grade (`success`, `partial`, `failure`), or `lost` when the log died.
     pub grade: String,
     /// Cause of a non-success.
@@ -196,7 +313,12 @@ pub struct TrialLine {
 }
 
 impl TrialLine {
-    fn new(setup: &TrialSetup, method: &str, result: Option<&TrialResult>) -> TrialLine {
+    fn new(
+        setup: &TrialSetup,
+        task: &str,
+        method: &str,
+        result: Option<&TrialResult>,
+    ) -> TrialLine {
         let pose = &setup.placement.base_from_object;
         let yaw = pose.rpy.map_or(0.0, |r| r[2]);
         let ms = |s: f64| s * 1e3;
@@ -219,7 +341,9 @@ impl TrialLine {
             object: setup.object.name.clone(),
             placement: setup.placement.index,
             placement_xy_yaw: [pose.xyz[0], pose.xyz[1], yaw],
+            task: task.to_string(),
             method: method.to_string(),
+            lab: setup.lab,
             grade,
             cause,
             snapshot_to_grasp_command_ms: ms(t.snapshot_to_grasp_command_s),
@@ -237,14 +361,18 @@ impl TrialLine {
             .as_ref()
             .map_or(String::new(), |c| format!(" ({c})"));
         let command_ms = self.snapshot_to_grasp_command_ms - self.perceive_ms - self.plan_ms;
+        let lab = self
+            .lab
+            .map_or(String::new(), |l| format!("  [lab: {}]", l.text()));
         format!(
-            "trial {} {} #{} at ({:.3}, {:.3}) yaw {:+.2} {}: {}{}  snapshot->grasp command {:.0} ms [perceive {:.0}, plan {:.0}, to command {:.0}; capture {:.0}]  execute {:.1} s",
+            "trial {} {} #{} at ({:.3}, {:.3}) yaw {:+.2} {} {}: {}{}  snapshot->grasp command {:.0} ms [perceive {:.0}, plan {:.0}, to command {:.0}; capture {:.0}]  execute {:.1} s{lab}",
             self.trial_id,
             self.object,
             self.placement,
             self.placement_xy_yaw[0],
             self.placement_xy_yaw[1],
             self.placement_xy_yaw[2],
+            self.task,
             self.method,
             self.grade,
             cause,
@@ -366,6 +494,10 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
     let category: Category = args.kind.category.parse()?;
     let mut dbs = Databases::new(&args.kind.db_dir);
     let db = dbs.get(&args.kind.category)?.clone();
+    let world = World::new(&args.world, category, args.trials, args.seed, &db)?;
+    if !args.json {
+        eprintln!("{}", world.lab.text());
+    }
     let temp_run = args.run_dir.is_none();
     let run_dir = args.run_dir.clone().unwrap_or_else(|| {
         std::env::temp_dir().join(format!("graspcell-demo-{}", std::process::id()))
@@ -391,27 +523,30 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
             break;
         }
         cell.supervise()?;
-        let object = novel_object(category, args.seed, i as u64, &db);
+        let (object, source, min_z) = world.object(i).clone();
         let mut rng = placement_rng(args.seed, i as u64);
+        let trial_seed = args.seed.wrapping_mul(1000).wrapping_add(i as u64);
         let setup = TrialSetup {
             trial_id: cell.new_trial_id(),
             category,
             object,
-            placement: random_placement(&config, &mut rng, 0),
+            placement: on_table(random_placement(&config, &mut rng, 0), min_z),
             campaign_id: None,
-            noise_seed: args.seed.wrapping_mul(1000).wrapping_add(i as u64),
-            perception_seed: args.seed.wrapping_mul(1000).wrapping_add(i as u64),
+            noise_seed: trial_seed,
+            perception_seed: trial_seed,
+            source,
+            lab: world.draw(args.seed, trial_seed),
         };
         bar.set_message(setup.object.name.clone());
         let result = cell.run_trial(
             Some(&setup),
             setup.trial_id,
             &args.kind.category,
-            &args.kind.task,
+            &args.task,
             &args.method,
             &mut |_| {},
         )?;
-        let line = TrialLine::new(&setup, &args.method, result.as_ref());
+        let line = TrialLine::new(&setup, &args.task, &args.method, result.as_ref());
         if !args.json {
             bar.suspend(|| println!("{}", line.text()));
         }
@@ -453,26 +588,46 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
         check_method(m)?;
     }
     anyhow::ensure!(
-        args.objects > 0 && args.placements > 0 && !args.methods.is_empty(),
-        "--objects, --placements and --methods must not be empty"
+        args.instances > 0 && args.placements > 0 && !args.methods.is_empty(),
+        "--instances, --placements and --methods must not be empty"
     );
     let config = CellConfig::load(config_path)?;
     let category: Category = args.kind.category.parse()?;
     let mut dbs = Databases::new(&args.kind.db_dir);
     let db = dbs.get(&args.kind.category)?.clone();
-    let campaign_id = args.campaign.clone().unwrap_or_else(|| {
-        format!(
-            "{}-{}-seed{}",
-            args.kind.category, args.kind.task, args.seed
-        )
-    });
-    // Resume: trials of this campaign already graded are not run again.
-    let mut done: HashSet<(String, u32, String)> = HashSet::new();
+    let tasks = if args.tasks.is_empty() {
+        db.file.tasks.clone()
+    } else {
+        args.tasks.clone()
+    };
+    for task in &tasks {
+        anyhow::ensure!(
+            db.file.tasks.contains(task),
+            "--task {task:?}: the {} database has tasks {}",
+            args.kind.category,
+            db.file.tasks.join(", ")
+        );
+    }
+    let world = World::new(&args.world, category, args.instances, args.seed, &db)?;
+    let objects = if args.world.objects.is_some() {
+        world.objects.len()
+    } else {
+        args.instances
+    };
+    // One campaign per task (each its own Table-2 report and sign tests).
+    let campaign_id = |task: &str| match &args.campaign {
+        Some(c) if tasks.len() == 1 => c.clone(),
+        Some(c) => format!("{c}-{task}"),
+        None => format!("{}-{task}-seed{}", args.kind.category, args.seed),
+    };
+    // Resume: trials of these campaigns already graded are not run again.
+    let mut done: HashSet<(String, String, u32, String)> = HashSet::new();
     if args.log.exists() {
         let log = TrialLog::open_existing(&args.log)?;
         for t in log.trials()? {
-            if t.trial.campaign_id.as_deref() == Some(campaign_id.as_str()) && t.grading.is_some() {
+            if let (Some(c), Some(_)) = (&t.trial.campaign_id, &t.grading) {
                 done.insert((
+                    c.clone(),
                     t.trial.object.name.clone(),
                     t.trial.placement.index,
                     t.trial.method.clone(),
@@ -481,26 +636,46 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
         }
     }
     let mut plan = Vec::new();
-    for o in 0..args.objects {
-        let object = novel_object(category, args.seed, o as u64, &db);
-        let mut rng = placement_rng(args.seed, o as u64);
-        for p in 0..args.placements {
-            let placement = random_placement(&config, &mut rng, p);
-            for method in &args.methods {
-                if !done.contains(&(object.name.clone(), p, method.clone())) {
-                    // Same noise and perception seeds for every method of a placement.
-                    let seed = args.seed.wrapping_mul(1_000_003) ^ ((o as u64) << 16 | p as u64);
-                    plan.push((object.clone(), placement, method.clone(), seed));
+    for task in &tasks {
+        let id = campaign_id(task);
+        for o in 0..objects {
+            let (object, source, min_z) = world.object(o).clone();
+            let mut rng = placement_rng(args.seed, o as u64);
+            for p in 0..args.placements {
+                let placement = on_table(random_placement(&config, &mut rng, p), min_z);
+                for method in &args.methods {
+                    if !done.contains(&(id.clone(), object.name.clone(), p, method.clone())) {
+                        // Same noise, perception and joint errors for every method
+                        // of a placement.
+                        let seed =
+                            args.seed.wrapping_mul(1_000_003) ^ ((o as u64) << 16 | p as u64);
+                        plan.push(CampaignTrial {
+                            campaign_id: id.clone(),
+                            task: task.clone(),
+                            object: object.clone(),
+                            source: source.clone(),
+                            placement,
+                            method: method.clone(),
+                            seed,
+                            lab: world.draw(args.seed, seed),
+                        });
+                    }
                 }
             }
         }
     }
-    let total = args.objects * args.placements as usize * args.methods.len();
+    let total = tasks.len() * objects * args.placements as usize * args.methods.len();
     eprintln!(
-        "campaign {campaign_id}: {} of {total} trials to run ({} already graded in {})",
+        "campaigns {}: {} of {total} trials to run ({} already graded in {}); {}",
+        tasks
+            .iter()
+            .map(|t| campaign_id(t))
+            .collect::<Vec<_>>()
+            .join(", "),
         plan.len(),
         total - plan.len(),
-        args.log.display()
+        args.log.display(),
+        world.lab.text()
     );
     let domain = private_domain("campaign")?;
     let stage = StageArgs {
@@ -517,7 +692,7 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     crate::cell::install_stop_handler();
     let lines = {
         let mut cell = Cell::start(options, (*domain).clone()).context("starting the cell")?;
-        let lines = run_campaign_trials(&mut cell, &args, &campaign_id, category, &plan)?;
+        let lines = run_campaign_trials(&mut cell, &args, category, &plan)?;
         let leftover = cell.stop()?;
         if !leftover.is_empty() {
             tracing::warn!(files = leftover.len(), "shared memory left behind");
@@ -527,31 +702,116 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     domain.remove()?;
     let summary = Summary::of(&lines);
     let log = TrialLog::open_existing(&args.log)?;
-    let report = crate::trial::Report::from_trials(&log.trials()?, Some(&campaign_id));
+    let trials = log.trials()?;
     #[derive(Serialize)]
-    struct CampaignOutput {
+    struct TaskReport {
+        task: String,
         campaign_id: String,
-        log: PathBuf,
-        run: Vec<TrialLine>,
-        summary: Summary,
         report: crate::trial::Report,
     }
+    let reports: Vec<TaskReport> = tasks
+        .iter()
+        .map(|task| {
+            let id = campaign_id(task);
+            TaskReport {
+                task: task.clone(),
+                report: crate::trial::Report::from_trials(&trials, Some(&id)),
+                campaign_id: id,
+            }
+        })
+        .collect();
+    #[derive(Serialize)]
+    struct CampaignOutput {
+        log: PathBuf,
+        lab: LabErrors,
+        run: Vec<TrialLine>,
+        summary: Summary,
+        by_task: Vec<TaskRow>,
+        tasks: Vec<TaskReport>,
+    }
     let out = CampaignOutput {
-        campaign_id,
         log: args.log.clone(),
+        lab: world.lab,
+        by_task: TaskRow::of(&lines, &tasks, &args.methods),
         run: lines,
         summary,
-        report,
+        tasks: reports,
     };
     emit(args.json, &out, |o| {
-        format!(
-            "{}\n{}{}",
-            o.summary.text(),
-            o.report.to_text(),
-            crate::trial::paper::comparison_text(&o.report)
-        )
+        let mut text = format!("{}{}\n", o.summary.text(), o.lab.text());
+        text += &TaskRow::table(&o.by_task);
+        for t in &o.tasks {
+            text += &format!(
+                "\n== task {} ==\n{}{}",
+                t.task,
+                t.report.to_text(),
+                crate::trial::paper::comparison_text(&t.report)
+            );
+        }
+        text
     })?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// One trial a campaign plans to run.
+struct CampaignTrial {
+    campaign_id: String,
+    task: String,
+    object: crate::trial::ObjectRef,
+    source: ObjectSource,
+    placement: crate::trial::Placement,
+    method: String,
+    seed: u64,
+    lab: Option<LabDraw>,
+}
+
+/// Grades of one task and method over the trials run now.
+#[derive(Debug, Clone, Serialize)]
+struct TaskRow {
+    task: String,
+    method: String,
+    trials: usize,
+    success: usize,
+    partial: usize,
+    failure: usize,
+}
+
+impl TaskRow {
+    fn of(lines: &[TrialLine], tasks: &[String], methods: &[String]) -> Vec<TaskRow> {
+        let mut rows = Vec::new();
+        for task in tasks {
+            for method in methods {
+                let of: Vec<&TrialLine> = lines
+                    .iter()
+                    .filter(|l| &l.task == task && &l.method == method)
+                    .collect();
+                let count = |g: &str| of.iter().filter(|l| l.grade == g).count();
+                rows.push(TaskRow {
+                    task: task.clone(),
+                    method: method.clone(),
+                    trials: of.len(),
+                    success: count("success"),
+                    partial: count("partial"),
+                    failure: count("failure"),
+                });
+            }
+        }
+        rows
+    }
+
+    fn table(rows: &[TaskRow]) -> String {
+        let mut text = format!(
+            "{:<8} {:<12} {:>6} {:>8} {:>8} {:>8}\n",
+            "task", "method", "trials", "success", "partial", "failure"
+        );
+        for r in rows {
+            text += &format!(
+                "{:<8} {:<12} {:>6} {:>8} {:>8} {:>8}\n",
+                r.task, r.method, r.trials, r.success, r.partial, r.failure
+            );
+        }
+        text
+    }
 }
 
 /// Runs the planned trials of a campaign; a lost result (the log stage died) is
@@ -559,18 +819,12 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
 fn run_campaign_trials(
     cell: &mut Cell,
     args: &CampaignArgs,
-    campaign_id: &str,
     category: Category,
-    plan: &[(
-        crate::trial::ObjectRef,
-        crate::trial::Placement,
-        String,
-        u64,
-    )],
+    plan: &[CampaignTrial],
 ) -> anyhow::Result<Vec<TrialLine>> {
     let bar = progress(plan.len() as u64, args.json);
     let mut lines = Vec::new();
-    for (object, placement, method, seed) in plan {
+    for t in plan {
         if stop_requested() {
             break;
         }
@@ -578,22 +832,27 @@ fn run_campaign_trials(
         let setup = TrialSetup {
             trial_id: cell.new_trial_id(),
             category,
-            object: object.clone(),
-            placement: *placement,
-            campaign_id: Some(campaign_id.to_string()),
-            noise_seed: *seed,
-            perception_seed: *seed,
+            object: t.object.clone(),
+            placement: t.placement,
+            campaign_id: Some(t.campaign_id.clone()),
+            noise_seed: t.seed,
+            perception_seed: t.seed,
+            source: t.source.clone(),
+            lab: t.lab,
         };
-        bar.set_message(format!("{} #{} {method}", object.name, placement.index));
+        bar.set_message(format!(
+            "{} #{} {} {}",
+            t.object.name, t.placement.index, t.task, t.method
+        ));
         let result = cell.run_trial(
             Some(&setup),
             setup.trial_id,
             &args.kind.category,
-            &args.kind.task,
-            method,
+            &t.task,
+            &t.method,
             &mut |_| {},
         )?;
-        let line = TrialLine::new(&setup, method, result.as_ref());
+        let line = TrialLine::new(&setup, &t.task, &t.method, result.as_ref());
         if !args.json {
             bar.suspend(|| println!("{}", line.text()));
         }
@@ -670,6 +929,8 @@ pub fn trial(config_path: &Path, args: TrialArgs) -> anyhow::Result<ExitCode> {
             campaign_id: None,
             noise_seed: args.seed,
             perception_seed: args.seed,
+            source: ObjectSource::Training,
+            lab: None,
         };
         setup.write(&args.location.run_dir)?;
         setup_written = Some(setup);
@@ -690,7 +951,7 @@ pub fn trial(config_path: &Path, args: TrialArgs) -> anyhow::Result<ExitCode> {
         anyhow::bail!("trial {trial_id}: no result within {} s", args.timeout_s);
     };
     let line = match &setup_written {
-        Some(setup) => TrialLine::new(setup, &args.method, Some(&result)),
+        Some(setup) => TrialLine::new(setup, &args.task, &args.method, Some(&result)),
         None => {
             let t = result.timings;
             TrialLine {
@@ -698,7 +959,9 @@ pub fn trial(config_path: &Path, args: TrialArgs) -> anyhow::Result<ExitCode> {
                 object: "(real object)".into(),
                 placement: 0,
                 placement_xy_yaw: [f64::NAN; 3],
+                task: args.task.clone(),
                 method: args.method.clone(),
+                lab: None,
                 grade: result
                     .grade()
                     .map_or("?".into(), |g| format!("{g:?}").to_lowercase()),

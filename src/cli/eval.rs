@@ -6,13 +6,17 @@ use super::emit;
 use super::plan::FitWeightName;
 use crate::category::CategoryDb;
 use crate::config::CellConfig;
-use crate::eval::chart::write_verdict_chart;
+use crate::eval::chart::{write_grade_chart, write_verdict_chart};
 use crate::eval::experiment::Setup;
 use crate::eval::loo::TallyRow;
+use crate::eval::novel::{
+    run_novel, CategoryModels, NovelCell, NovelObject, NovelOptions, NovelReport,
+};
 use crate::eval::{
     cross_category, leave_one_out, subset, CategoryRegistrar, CrossReport, LooReport,
     PlacementRegion, ViewKind, DEFAULT_EQUAL_TOLERANCE,
 };
+use crate::mesh::procedural::Category;
 use crate::plan::{FitWeight, Kernel, PlanOptions, Reachability};
 use crate::robot::hand::HandModel;
 use crate::robot::Robot;
@@ -48,6 +52,136 @@ pub enum EvalCommand {
     /// of our grasp with each kernel and of best single, simulated on it.
     #[command(after_help = "Example: cell eval cross --train hammer --test knife")]
     Cross(CrossArgs),
+    /// The end-to-end novel-object experiment (issue 17): novel objects through the
+    /// cell's own chain.
+    ///
+    /// Novel instances of each category (by default the held-apart family the
+    /// databases never saw; seeds disjoint from them) stand at seeded placements.
+    /// Each is rendered by the simulated camera from its true mount (the lab's
+    /// hand–eye error), segmented and registered as the perception stage does,
+    /// planned per task and method as the plan stage does, executed at the chosen
+    /// joints plus the lab's joint noise, and graded by the simulated observer on the
+    /// true mesh with the table. Per task and method: success / partial / failure,
+    /// failure causes, force closure, collisions of the open hand.
+    #[command(
+        after_help = "Example: cell eval novel --instances 10 --placements 3 --json\n\
+                      Your own scans: cell eval novel --objects scans/ (scans/objects.toml names each file's category and scale)"
+    )]
+    Novel(NovelArgs),
+}
+
+/// The lab's errors on the command line (`cell demo`, `cell campaign`, `cell eval
+/// novel`).
+#[derive(Debug, Clone, Args)]
+pub struct LabArgs {
+    /// Hand–eye translation error (mm), drawn once per campaign in a seeded
+    /// direction.
+    #[arg(long, default_value_t = crate::sim::lab::DEFAULT_HAND_EYE_TRANSLATION_M * 1e3)]
+    pub hand_eye_error_mm: f64,
+    /// Hand–eye rotation error (degrees), drawn once per campaign about a seeded axis.
+    #[arg(long, default_value_t = crate::sim::lab::DEFAULT_HAND_EYE_ROTATION_RAD.to_degrees())]
+    pub hand_eye_error_deg: f64,
+    /// Executed joints' noise (rad, standard deviation), drawn per trial; default the
+    /// LBR4+'s repeatability (0.05 mm) over a 1 m lever.
+    #[arg(long, default_value_t = crate::sim::lab::DEFAULT_JOINT_NOISE_RAD)]
+    pub joint_noise_rad: f64,
+    /// An exact cell: no hand–eye or execution error.
+    #[arg(long)]
+    pub exact: bool,
+}
+
+impl LabArgs {
+    /// The lab errors these options ask for.
+    pub fn errors(&self) -> anyhow::Result<crate::sim::lab::LabErrors> {
+        let lab = if self.exact {
+            crate::sim::lab::LabErrors::NONE
+        } else {
+            crate::sim::lab::LabErrors {
+                hand_eye_translation_m: self.hand_eye_error_mm * 1e-3,
+                hand_eye_rotation_rad: self.hand_eye_error_deg.to_radians(),
+                joint_noise_rad: self.joint_noise_rad,
+            }
+        };
+        lab.validate().map_err(|e| {
+            anyhow::anyhow!("--hand-eye-error-mm / --hand-eye-error-deg / --joint-noise-rad: {e}")
+        })?;
+        Ok(lab)
+    }
+}
+
+/// Where novel objects come from, on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FamilyChoice {
+    /// Shapes the databases never saw (squat, tall, conical, barrel, square-handled
+    /// and handle-less mugs; bottles with other shoulders and necks).
+    HeldApart,
+    /// Fresh seeds of the databases' own generator and ranges.
+    Training,
+}
+
+impl From<FamilyChoice> for crate::mesh::procedural::held_apart::Family {
+    fn from(c: FamilyChoice) -> Self {
+        match c {
+            FamilyChoice::HeldApart => Self::HeldApart,
+            FamilyChoice::Training => Self::Training,
+        }
+    }
+}
+
+/// The methods `cell eval novel` compares by default, those the plan stage knows.
+pub fn default_methods() -> Vec<String> {
+    ["best-single", "gaussian-r", "laplace", "laplace-sim"]
+        .into_iter()
+        .filter(|m| crate::cell::plan::method_kernel(m).is_some())
+        .map(str::to_string)
+        .collect()
+}
+
+/// Options of `cell eval novel`.
+#[derive(Debug, Args)]
+pub struct NovelArgs {
+    /// Directory holding one category database per subdirectory (db/mug, ...).
+    #[arg(long, default_value = "db")]
+    pub db_dir: PathBuf,
+    /// Categories of procedural novel objects, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "mug,bottle,hammer")]
+    pub categories: Vec<String>,
+    /// Novel instances per category.
+    #[arg(long, default_value_t = 10)]
+    pub instances: usize,
+    /// Seeded placements of every object.
+    #[arg(long, default_value_t = 3)]
+    pub placements: usize,
+    /// Where the procedural objects come from.
+    #[arg(long, value_enum, default_value_t = FamilyChoice::HeldApart)]
+    pub family: FamilyChoice,
+    /// Your own objects instead: a directory of OBJ/STL/PLY meshes with an
+    /// `objects.toml` naming each file's category and scale.
+    #[arg(long, value_name = "DIR")]
+    pub objects: Option<PathBuf>,
+    /// Methods of the plan stage, comma-separated (default: best-single,
+    /// gaussian-r, laplace, and laplace-sim where the planner has it).
+    #[arg(long, value_delimiter = ',')]
+    pub methods: Vec<String>,
+    /// Only these tasks, comma-separated (default: every task of each category).
+    #[arg(long, value_delimiter = ',')]
+    pub tasks: Vec<String>,
+    /// The paper's setting: no approach to contact, collisions of the open hand
+    /// fail and are counted per method.
+    #[arg(long)]
+    pub paper: bool,
+    /// The lab's errors.
+    #[command(flatten)]
+    pub lab: LabArgs,
+    /// Seed of objects, placements, noise, registration and the lab's errors.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Write the success / partial / failure chart (PNG) here.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Print JSON: the rows and every trial.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// A kernel, or all three, on the command line.
@@ -133,12 +267,34 @@ pub struct ExperimentArgs {
     /// more runs and steadier shares.
     #[arg(long, default_value_t = 1)]
     pub placements: usize,
+    /// The paper's setting (issue 19): no retreat of a colliding hand, a colliding
+    /// grasp scores -1 (unstable, Table 1) and collisions are counted per method;
+    /// the paper's kernel scale s = b = 50 unless --paper-scale says otherwise.
+    #[arg(long)]
+    pub paper: bool,
     /// Write the better / equal / worse bar chart (PNG) here.
     #[arg(long)]
     pub png: Option<PathBuf>,
     /// Print JSON: the tallies, and per target its pose, fits and every run.
     #[arg(long)]
     pub json: bool,
+}
+
+/// The paper's kernel scale in its simulation (s = b = 50, mm and rad mixed).
+pub const PAPER_SIMULATION_SCALE: f64 = 50.0;
+
+impl ExperimentArgs {
+    /// The kernels' paper scale: `--paper-scale`, else with `--paper` the paper's
+    /// simulation value, else none (the cell's own scales).
+    ///
+    /// PAPER-MODE PLANNER SWITCH (issue 19 items 1 and 5): when the planner helper's
+    /// library option for the paper's setting (kernel scales, no reachability repair
+    /// for any method) is on main, `--paper` sets it here, in one place, instead of
+    /// only the scale.
+    pub fn kernel_scale(&self) -> Option<f64> {
+        self.paper_scale
+            .or(self.paper.then_some(PAPER_SIMULATION_SCALE))
+    }
 }
 
 /// Options of `cell eval loo`.
@@ -174,6 +330,7 @@ pub fn run(config: &Path, which: EvalCommand) -> anyhow::Result<ExitCode> {
     match which {
         EvalCommand::Loo(args) => loo(config, args),
         EvalCommand::Cross(args) => cross(config, args),
+        EvalCommand::Novel(args) => novel(config, args),
     }
 }
 
@@ -291,6 +448,7 @@ impl Cell {
             equal_tolerance: args.equal_tolerance,
             seed: args.seed,
             placements: args.placements,
+            paper: args.paper,
         })
     }
 
@@ -322,13 +480,24 @@ fn progress_bar(label: &str) -> ProgressBar {
 /// The tally rows as a text table.
 fn tally_table(rows: &[TallyRow]) -> String {
     let mut text = format!(
-        "{:<8} {:<11} {:>4} {:>7} {:>7} {:>7} {:>9} {:>9} {:>6} {:>6}\n",
-        "task", "kernel", "runs", "better", "equal", "worse", "eps", "eps 1", "FC%", "FC% 1"
+        "{:<8} {:<11} {:>4} {:>7} {:>7} {:>7} {:>9} {:>9} {:>6} {:>6} {:>5} {:>6}\n",
+        "task",
+        "kernel",
+        "runs",
+        "better",
+        "equal",
+        "worse",
+        "eps",
+        "eps 1",
+        "FC%",
+        "FC% 1",
+        "coll",
+        "coll 1"
     );
     for r in rows {
         let t = &r.tally;
         text += &format!(
-            "{:<8} {:<11} {:>4} {:>6.1}% {:>6.1}% {:>6.1}% {:>9.4} {:>9.4} {:>5.0}% {:>5.0}%\n",
+            "{:<8} {:<11} {:>4} {:>6.1}% {:>6.1}% {:>6.1}% {:>9.4} {:>9.4} {:>5.0}% {:>5.0}% {:>5} {:>6}\n",
             r.task,
             r.kernel,
             t.runs,
@@ -338,10 +507,12 @@ fn tally_table(rows: &[TallyRow]) -> String {
             t.mean_epsilon,
             t.mean_epsilon_single,
             t.force_closure_pct,
-            t.force_closure_single_pct
+            t.force_closure_single_pct,
+            r.collisions,
+            r.collisions_single
         );
     }
-    text += "(eps: mean epsilon of our grasps; eps 1 / FC% 1: of best single; FC: force closure)\n";
+    text += "(eps: mean epsilon of our grasps; eps 1 / FC% 1 / coll 1: of best single; FC: force closure; coll: open hand colliding at the grasp)\n";
     text
 }
 
@@ -416,6 +587,15 @@ fn skipped_text(targets: &[crate::eval::TargetReport]) -> String {
     text
 }
 
+/// How collisions were scored.
+fn scoring(paper: bool) -> &'static str {
+    if paper {
+        "paper (no retreat; a colliding grasp scores -1)"
+    } else {
+        "cell (a colliding hand backs off up to the database's retreat; collisions score 0)"
+    }
+}
+
 fn kernel_names(kernels: &[Kernel]) -> String {
     kernels
         .iter()
@@ -427,7 +607,7 @@ fn kernel_names(kernels: &[Kernel]) -> String {
 /// Runs `cell eval loo`.
 pub fn loo(config: &Path, args: LooArgs) -> anyhow::Result<ExitCode> {
     let e = &args.experiment;
-    let kernels = kernels(&e.kernel, e.paper_scale)?;
+    let kernels = kernels(&e.kernel, e.kernel_scale())?;
     let mut db = load_category_db(&e.db_dir, &args.category)?;
     if !args.models.is_empty() {
         db = subset(&db, &args.models)?;
@@ -505,8 +685,11 @@ fn loo_text(r: &LooReport, seconds: f64, png: Option<&Path>) -> String {
         r.seed
     );
     text += &format!(
-        "{} runs simulated in {:.1} s; equal within epsilon {}\n",
-        r.runs, seconds, r.equal_tolerance
+        "{} runs simulated in {:.1} s; equal within epsilon {}; scoring: {}\n",
+        r.runs,
+        seconds,
+        r.equal_tolerance,
+        scoring(r.paper)
     );
     text += &common_text(&r.registration, &r.rows, &r.targets, png);
     text
@@ -515,7 +698,7 @@ fn loo_text(r: &LooReport, seconds: f64, png: Option<&Path>) -> String {
 /// Runs `cell eval cross`.
 pub fn cross(config: &Path, args: CrossArgs) -> anyhow::Result<ExitCode> {
     let e = &args.experiment;
-    let kernels = kernels(&e.kernel, e.paper_scale)?;
+    let kernels = kernels(&e.kernel, e.kernel_scale())?;
     let train = load_category_db(&e.db_dir, &args.train)?;
     let test = load_category_db(&e.db_dir, &args.test)?;
     let cell = Cell::load(config, e.reach)?;
@@ -566,10 +749,11 @@ fn cross_text(r: &CrossReport, seconds: f64, png: Option<&Path>) -> String {
         r.seed
     );
     text += &format!(
-        "{} targets ({} placements each) in {:.1} s\n",
+        "{} targets ({} placements each) in {:.1} s; scoring: {}\n",
         r.targets.len(),
         r.placements,
-        seconds
+        seconds,
+        scoring(r.paper)
     );
     text += &format!("{:<12} {:<6}", "test object", "task");
     for k in &r.kernels {
@@ -599,6 +783,179 @@ fn cross_text(r: &CrossReport, seconds: f64, png: Option<&Path>) -> String {
     }
     text += "(epsilon of the grasp simulated on the test object; 0 = not force closure or a collision)\n";
     text += &common_text(&r.registration, &r.rows, &r.targets, png);
+    text
+}
+
+/// The objects of `cell eval novel`: the user's (`--objects`) or procedural novel
+/// instances of each category.
+fn novel_objects(
+    args: &NovelArgs,
+    dbs: &mut crate::cell::plan::Databases,
+) -> anyhow::Result<Vec<NovelObject>> {
+    if let Some(dir) = &args.objects {
+        let objects = crate::eval::objects::load_objects(dir)?;
+        return Ok(objects.iter().map(NovelObject::from_user).collect());
+    }
+    anyhow::ensure!(args.instances > 0, "--instances must be at least 1");
+    let mut out = Vec::new();
+    for name in &args.categories {
+        let category: Category = name.parse()?;
+        let db = dbs.get(name)?.clone();
+        for i in 0..args.instances {
+            out.push(NovelObject::procedural(
+                args.family.into(),
+                category,
+                args.seed,
+                i as u64,
+                &db,
+            )?);
+        }
+    }
+    Ok(out)
+}
+
+/// Runs `cell eval novel`.
+pub fn novel(config_path: &Path, args: NovelArgs) -> anyhow::Result<ExitCode> {
+    let methods = if args.methods.is_empty() {
+        default_methods()
+    } else {
+        args.methods.clone()
+    };
+    let lab = args.lab.errors()?;
+    let config = CellConfig::load(config_path)?;
+    let mut dbs = crate::cell::plan::Databases::new(&args.db_dir);
+    let objects = novel_objects(&args, &mut dbs)?;
+    let mut categories: Vec<Category> = objects.iter().map(|o| o.category).collect();
+    categories.sort_by_key(|c| c.name());
+    categories.dedup();
+    let started = Instant::now();
+    let mut models = std::collections::HashMap::new();
+    for category in categories {
+        models.insert(
+            category,
+            CategoryModels::load(&mut dbs, category, &args.tasks)?,
+        );
+    }
+    let robot = std::sync::Arc::new(Robot::load(&config)?);
+    let hand = HandModel::load(&config)?;
+    let observer = crate::sim::observer::Observer::new(&config)?;
+    let cell = NovelCell {
+        config: &config,
+        robot,
+        hand: &hand,
+        observer: &observer,
+    };
+    let options = NovelOptions {
+        placements: args.placements,
+        seed: args.seed,
+        methods,
+        tasks: args.tasks.clone(),
+        lab,
+        paper: args.paper,
+    };
+    tracing::info!(seed = args.seed, objects = objects.len(), "novel objects");
+    if !args.json {
+        eprintln!(
+            "{} objects x {} placements; {}",
+            objects.len(),
+            args.placements,
+            lab.text()
+        );
+    }
+    let bar = if args.json {
+        ProgressBar::hidden()
+    } else {
+        progress_bar("novel")
+    };
+    let report = run_novel(&cell, &mut dbs, &models, &objects, &options, Some(&bar));
+    bar.finish_and_clear();
+    let report = report?;
+    let seconds = started.elapsed().as_secs_f64();
+    if let Some(png) = &args.png {
+        let title = format!(
+            "NOVEL OBJECTS ({} PLACEMENTS, SEED {}{})",
+            report.placements,
+            report.seed,
+            if report.paper { ", PAPER" } else { "" }
+        );
+        write_grade_chart(png, &title, &report.rows)
+            .with_context(|| format!("{}", png.display()))?;
+    }
+    let out = Timed {
+        report: &report,
+        seconds,
+    };
+    emit(args.json, &out, |o| {
+        let mut text = novel_text(o.report, o.seconds);
+        if let Some(p) = &args.png {
+            text += &format!("chart: {}\n", p.display());
+        }
+        text
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The rows of a novel-object report as a text table.
+fn novel_text(r: &NovelReport, seconds: f64) -> String {
+    let mut text = format!(
+        "novel objects: {} objects x {} placements, tasks {}; methods {}; seed {}{}\n",
+        r.objects.len(),
+        r.placements,
+        r.tasks.join(", "),
+        r.methods.join(", "),
+        r.seed,
+        if r.paper { "; paper setting" } else { "" }
+    );
+    text += &format!(
+        "{}; drawn hand-eye error {:.1} mm / {:.2} deg; approach to contact: {}\n",
+        r.lab.text(),
+        nalgebra::Vector3::new(
+            r.hand_eye_error[0],
+            r.hand_eye_error[1],
+            r.hand_eye_error[2]
+        )
+        .norm()
+            * 1e3,
+        nalgebra::Vector3::new(
+            r.hand_eye_error[3],
+            r.hand_eye_error[4],
+            r.hand_eye_error[5]
+        )
+        .norm()
+        .to_degrees(),
+        if r.approach_to_contact { "on" } else { "off" }
+    );
+    text += &format!("{} trials in {:.1} s\n", r.trials.len(), seconds);
+    text += &format!(
+        "{:<12} {:<12} {:>6} {:>8} {:>8} {:>8} {:>6} {:>5} {:>7}  {}\n",
+        "task",
+        "method",
+        "trials",
+        "success",
+        "partial",
+        "failure",
+        "FC%",
+        "coll",
+        "eps",
+        "failure causes"
+    );
+    for row in &r.rows {
+        let causes: Vec<String> = row.causes.iter().map(|(c, n)| format!("{c} {n}")).collect();
+        text += &format!(
+            "{:<12} {:<12} {:>6} {:>7.0}% {:>7.0}% {:>7.0}% {:>5.0}% {:>5} {:>7.4}  {}\n",
+            row.task,
+            row.method,
+            row.trials,
+            row.success_pct,
+            row.partial_pct,
+            row.failure_pct,
+            row.force_closure_pct,
+            row.collisions,
+            row.mean_epsilon,
+            causes.join(", ")
+        );
+    }
+    text += "(success / partial / failure: the simulated observer's grades; FC: force closure; coll: open hand colliding at the executed pose)\n";
     text
 }
 

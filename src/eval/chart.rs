@@ -33,6 +33,47 @@ pub fn verdict_chart(title: &str, rows: &[TallyRow]) -> (Canvas, Vec<Bar>) {
     grouped_bar_chart(title, &groups, &series, &values)
 }
 
+/// The observer's grades of the novel-object experiment: one group of bars per task
+/// and method, bars success (green), partial (amber), failure (red) in percent of
+/// trials; rows without trials draw no bars.
+pub fn grade_chart(title: &str, rows: &[super::novel::NovelRow]) -> (Canvas, Vec<Bar>) {
+    let groups: Vec<String> = rows
+        .iter()
+        .map(|r| format!("{} {}", r.task, r.method))
+        .collect();
+    let series: Vec<(String, Rgb)> = ["success", "partial", "failure"]
+        .iter()
+        .zip(GRADE_COLOURS)
+        .map(|(n, c)| (n.to_string(), c))
+        .collect();
+    let values: Vec<Vec<Option<f64>>> = rows
+        .iter()
+        .map(|r| {
+            if r.trials == 0 {
+                vec![None; 3]
+            } else {
+                vec![
+                    Some(r.success_pct),
+                    Some(r.partial_pct),
+                    Some(r.failure_pct),
+                ]
+            }
+        })
+        .collect();
+    grouped_bar_chart(title, &groups, &series, &values)
+}
+
+/// Writes the grade chart of `rows` to `path` (PNG, atomically).
+pub fn write_grade_chart(
+    path: &Path,
+    title: &str,
+    rows: &[super::novel::NovelRow],
+) -> Result<(), EvalError> {
+    let (canvas, _) = grade_chart(title, rows);
+    canvas.save_png(path)?;
+    Ok(())
+}
+
 /// Writes the chart of `rows` to `path` (PNG, atomically).
 pub fn write_verdict_chart(path: &Path, title: &str, rows: &[TallyRow]) -> Result<(), EvalError> {
     let (canvas, _) = verdict_chart(title, rows);
@@ -72,11 +113,15 @@ mod tests {
                     ],
                     0.01,
                 ),
+                collisions: 0,
+                collisions_single: 0,
             },
             TallyRow {
                 task: "top".into(),
                 kernel: "gaussian",
                 tally: Tally::default(),
+                collisions: 0,
+                collisions_single: 0,
             },
         ];
         let (_, bars) = verdict_chart("TEST", &rows);

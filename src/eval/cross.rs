@@ -52,6 +52,8 @@ pub struct CrossReport {
     pub equal_tolerance: f64,
     /// Whether the arm's reachability constrained the grasps.
     pub reachability: bool,
+    /// The paper's scoring: no retreat, collisions score −1.
+    pub paper: bool,
     /// The seed.
     pub seed: u64,
     /// Placements of each test object.
@@ -140,6 +142,7 @@ pub fn cross_category(
         kernels: kernels.to_vec(),
         equal_tolerance: setup.equal_tolerance,
         reachability: setup.reach.is_some(),
+        paper: setup.paper,
         seed: setup.seed,
         placements: setup.placements,
         targets,

@@ -63,6 +63,9 @@ pub struct Setup<'a> {
     pub seed: u64,
     /// Placements (each with its own view and registration) of every test object.
     pub placements: usize,
+    /// The paper's scoring ([`SimSetup::paper`]): no retreat, a colliding grasp
+    /// scores −1.
+    pub paper: bool,
 }
 
 impl Setup<'_> {
@@ -475,10 +478,14 @@ pub fn run_target(
         object,
         base_from_object,
     };
-    let sim = SimSetup {
-        closing: train.file.simulation.into(),
-        metric: train.file.metric.params(),
-        max_retreat_m: train.file.stability.retreat_m,
+    let sim = if setup.paper {
+        SimSetup::paper(train.file.simulation.into(), train.file.metric.params())
+    } else {
+        SimSetup::cell(
+            train.file.simulation.into(),
+            train.file.metric.params(),
+            train.file.stability.retreat_m,
+        )
     };
     let run_sim = |g: &PlannedGrasp| {
         simulate(setup.hand, &test, &g.pose, g.spread_rad, &sim).map_err(|source| {

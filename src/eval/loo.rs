@@ -24,6 +24,11 @@ pub struct TallyRow {
     /// Counts and means.
     #[serde(flatten)]
     pub tally: Tally,
+    /// Runs where our open hand collided at the grasp (not cleared by the retreat;
+    /// in the paper's scoring, every collision).
+    pub collisions: usize,
+    /// Runs where best single's open hand collided.
+    pub collisions_single: usize,
 }
 
 /// The result of a leave-one-out experiment.
@@ -43,6 +48,8 @@ pub struct LooReport {
     pub equal_tolerance: f64,
     /// Whether the arm's reachability constrained the grasps.
     pub reachability: bool,
+    /// The paper's scoring: no retreat, collisions score −1.
+    pub paper: bool,
     /// The seed.
     pub seed: u64,
     /// Models in the database (each held out in turn).
@@ -85,10 +92,14 @@ pub fn tally_rows(
     }
     for task in all_tasks {
         for kernel in kernels {
+            let of =
+                || runs().filter(|r| r.kernel == kernel.name() && task.is_none_or(|t| r.task == t));
             rows.push(TallyRow {
                 task: task.unwrap_or("all").to_string(),
                 kernel: kernel.name(),
                 tally: Tally::of(pairs(task, kernel.name()), tolerance),
+                collisions: of().filter(|r| r.ours.retreat_m.is_none()).count(),
+                collisions_single: of().filter(|r| r.single.retreat_m.is_none()).count(),
             });
         }
     }
@@ -156,6 +167,7 @@ pub fn leave_one_out(
         kernels: kernels.to_vec(),
         equal_tolerance: setup.equal_tolerance,
         reachability: setup.reach.is_some(),
+        paper: setup.paper,
         seed: setup.seed,
         models: n,
         placements: setup.placements,

@@ -11,11 +11,16 @@
 //!   and kernel, simulation); registration is a [`Registrar`].
 //! - [`loo`]: leave-one-out (Figures 5 and 6); [`cross`]: cross-category (Table 1).
 //! - [`handle`]: whether a mug's handle is in the view (its yaw error is judged).
-//! - [`chart`]: the better / equal / worse bar chart as PNG.
+//! - [`novel`]: the end-to-end novel-object experiment through the cell's chain
+//!   (camera, perception, planning, execution with the lab's errors, observer);
+//!   [`objects`]: a user's own meshes for it (a directory with `objects.toml`).
+//! - [`chart`]: the better / equal / worse bar chart as PNG, and the observer's
+//!   grades of the novel-object experiment.
 //! - [`registration`]: the category's registration ([`crate::register`]) as the
 //!   experiments' [`Registrar`].
 //!
-//! `cell eval loo` and `cell eval cross` run them from the command line.
+//! `cell eval loo`, `cell eval cross` and `cell eval novel` run them from the
+//! command line.
 
 pub mod chart;
 pub mod compare;
@@ -23,6 +28,8 @@ pub mod cross;
 pub mod experiment;
 pub mod handle;
 pub mod loo;
+pub mod novel;
+pub mod objects;
 pub mod outcome;
 pub mod registration;
 pub mod view;

@@ -8,6 +8,7 @@
 //! z axis (the centre of the round base); hammers and knives lie flat with the
 //! centre of their footprint's bounding box at the origin.
 
+pub mod held_apart;
 mod surface;
 
 use super::TriMesh;
@@ -137,6 +138,15 @@ pub struct MugParams {
     pub bottom_fillet_radius_m: f64,
     /// The handle; about one mug in six has none.
     pub handle: Option<HandleParams>,
+    /// How far the wall bulges out at mid-height beyond the straight or tapered
+    /// line (m): 0 for the training mugs, 0.006–0.012 for the held-apart barrels
+    /// ([`held_apart`]).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub bulge_m: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 /// A capped bottle: a surface of revolution with body, shoulder, neck and lip.
@@ -333,6 +343,7 @@ impl MugParams {
             bottom_thickness_m: rng.gen_range(0.004..=0.008),
             bottom_fillet_radius_m: rng.gen_range(0.003..=0.010),
             handle: None,
+            bulge_m: 0.0,
         };
         if !rng.gen_bool(1.0 / 6.0) {
             mug.handle = Some(mug.sample_handle(rng));
@@ -386,7 +397,35 @@ impl MugParams {
     }
 
     fn outer_radius(&self, z: f64) -> f64 {
-        self.radius_bottom_m + (self.radius_top_m - self.radius_bottom_m) * z / self.height_m
+        let u = z / self.height_m;
+        let line = self.radius_bottom_m + (self.radius_top_m - self.radius_bottom_m) * u;
+        if self.bulge_m == 0.0 {
+            line
+        } else {
+            line + self.bulge_m * 4.0 * u.clamp(0.0, 1.0) * (1.0 - u.clamp(0.0, 1.0))
+        }
+    }
+
+    /// Appends wall points `(radius(z), z)` from the profile's last point up or down
+    /// to height `z`, in steps no longer than `step`: a straight line for a straight
+    /// or tapered wall (as the training mugs were built), the curve for a barrel.
+    fn push_wall(
+        &self,
+        profile: &mut Vec<[f64; 2]>,
+        z: f64,
+        step: f64,
+        radius: impl Fn(f64) -> f64,
+    ) {
+        if self.bulge_m == 0.0 {
+            push_line(profile, [radius(z), z], step);
+            return;
+        }
+        let z0 = profile.last().expect("profile starts with a point")[1];
+        let n = (((z - z0).abs() / step).ceil() as usize).max(1);
+        for k in 1..=n {
+            let zk = z0 + (z - z0) * k as f64 / n as f64;
+            profile.push([radius(zk), zk]);
+        }
     }
 
     fn handle_curvature_ok(&self, h: &HandleParams) -> bool {
@@ -442,7 +481,7 @@ impl MugParams {
         if let Some(handle) = &self.handle {
             for zc in [handle.lower_z_m, handle.upper_z_m] {
                 let z_lo = zc - handle.thickness_m / 2.0;
-                push_line(&mut profile, [outer(z_lo), z_lo], 0.004);
+                self.push_wall(&mut profile, z_lo, 0.004, outer);
                 attachment_rings.push(profile.len() - 2);
                 let z_hi = zc + handle.thickness_m / 2.0;
                 for k in 1..=ATTACHMENT_CELLS {
@@ -451,7 +490,7 @@ impl MugParams {
                 }
             }
         }
-        push_line(&mut profile, [outer(z_rim), z_rim], 0.004);
+        self.push_wall(&mut profile, z_rim, 0.004, outer);
         push_arc(
             &mut profile,
             [outer(z_rim) - t / 2.0, z_rim],
@@ -461,7 +500,7 @@ impl MugParams {
             8,
         );
         let rf = (0.6 * rb).clamp(0.002, 0.004);
-        push_line(&mut profile, [inner(tb + rf), tb + rf], 0.005);
+        self.push_wall(&mut profile, tb + rf, 0.005, inner);
         let c_inner = [inner(tb + rf) - rf, tb + rf];
         push_arc(&mut profile, c_inner, rf, 0.0, -FRAC_PI_2, 4);
         push_line(&mut profile, [0.0, tb], 0.010);

@@ -4,6 +4,7 @@
 
 pub mod camera;
 pub mod fri;
+pub mod lab;
 pub mod observer;
 pub mod puck;
 pub mod scene;

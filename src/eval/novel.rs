@@ -1,0 +1,738 @@
+//! The end-to-end novel-object experiment (issue 17, item 6): objects the databases
+//! never saw stand at seeded placements on the table and go through the cell's own
+//! chain, per task and method, as in a campaign but without processes:
+//!
+//! 1. the simulated camera renders the scene (table and object) from the camera's
+//!    *true* mount, which differs from the calibrated one by the lab's hand–eye
+//!    error ([`crate::sim::lab`]);
+//! 2. perception segments the object and registers every model of the category
+//!    ([`crate::cell::perceive::perceive_trial`], with the calibrated mount);
+//! 3. the plan stage's planning ([`crate::cell::plan::plan_trial`]: the method, the
+//!    table, reachability) and its choice of joints the executor accepts
+//!    ([`crate::cell::plan::executable_joints`]);
+//! 4. execution at those joints plus the lab's joint errors;
+//! 5. the simulated observer's grade of the grasp on the object's true mesh with
+//!    the table ([`crate::sim::observer::Observer::grade`]): success / partial /
+//!    failure and the cause, with epsilon (force closure when > 0).
+//!
+//! Methods are the plan stage's names ([`crate::cell::plan::METHODS`]), an open
+//! list: whatever the plan stage accepts, this experiment runs.
+
+use super::objects::UserObject;
+use crate::category::CategoryDb;
+use crate::cell::perceive::perceive_trial;
+use crate::cell::plan::{executable_joints, plan_trial, Databases};
+use crate::cell::setup::novel_object_in;
+use crate::cloud::segment::SegmentParams;
+use crate::config::CellConfig;
+use crate::execute::{ExecutorConfig, SafetyCheck, SafetyLimits};
+use crate::geometry::{pose_error, Pose, PoseJson};
+use crate::ipc::{FitStatus, Fits, TrialRequest};
+use crate::mesh::procedural::held_apart::Family;
+use crate::mesh::procedural::{instance_seed, Category};
+use crate::mesh::TriMesh;
+use crate::quality::autograsp::{open_hand_collision, GraspObject};
+use crate::register::{ModelSet, RegisterParams};
+use crate::robot::hand::HandModel;
+use crate::robot::Robot;
+use crate::sim::camera::DepthCamera;
+use crate::sim::lab::{LabDraw, LabErrors};
+use crate::sim::observer::{Attempt, Observation, Observer};
+use crate::sim::scene::{Scene, TableBox};
+use crate::trial::{FailureCause, Grade};
+use serde::Serialize;
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+use std::sync::Arc;
+
+use super::view::PlacementRegion;
+
+/// Errors of the novel-object experiment; each names what is at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum NovelError {
+    /// An option is out of range.
+    #[error("{what}: {problem}")]
+    Option {
+        /// The option.
+        what: String,
+        /// What is wrong.
+        problem: String,
+    },
+    /// A category's database or models could not be prepared.
+    #[error("category {category}: {problem}")]
+    Category {
+        /// The category.
+        category: String,
+        /// What went wrong.
+        problem: String,
+    },
+    /// The cell (robot, observer, scene) failed on an object.
+    #[error("object {object}: {problem}")]
+    Object {
+        /// The object.
+        object: String,
+        /// What went wrong.
+        problem: String,
+    },
+}
+
+/// A novel object: its mesh and where it came from.
+#[derive(Debug, Clone)]
+pub struct NovelObject {
+    /// Its name.
+    pub name: String,
+    /// Its category.
+    pub category: Category,
+    /// `training`, `held-apart` or `file`.
+    pub origin: &'static str,
+    /// The mesh (object frame).
+    pub mesh: TriMesh,
+}
+
+impl NovelObject {
+    /// Instance `index` of the novel set `set_seed` of `category` in `family`: the
+    /// same objects `cell campaign` and `cell demo` draw.
+    pub fn procedural(
+        family: Family,
+        category: Category,
+        set_seed: u64,
+        index: u64,
+        db: &CategoryDb,
+    ) -> Result<NovelObject, NovelError> {
+        let (object, source) = novel_object_in(family, category, set_seed, index, db);
+        let setup = crate::cell::setup::TrialSetup {
+            trial_id: 0,
+            category,
+            object: object.clone(),
+            placement: crate::trial::Placement {
+                index: 0,
+                base_from_object: PoseJson::from(&Pose::identity()),
+            },
+            campaign_id: None,
+            noise_seed: 0,
+            perception_seed: 0,
+            source,
+            lab: None,
+        };
+        let mesh = setup.mesh().map_err(|e| NovelError::Object {
+            object: object.name.clone(),
+            problem: e.to_string(),
+        })?;
+        Ok(NovelObject {
+            name: object.name,
+            category,
+            origin: family.name(),
+            mesh,
+        })
+    }
+
+    /// A user's object ([`super::objects`]).
+    pub fn from_user(object: &UserObject) -> NovelObject {
+        NovelObject {
+            name: object.name.clone(),
+            category: object.category,
+            origin: "file",
+            mesh: object.mesh.clone(),
+        }
+    }
+}
+
+/// What the experiment runs.
+#[derive(Debug, Clone)]
+pub struct NovelOptions {
+    /// Placements of every object.
+    pub placements: usize,
+    /// Seed of placements, camera noise, registration and the lab's errors.
+    pub seed: u64,
+    /// The plan stage's methods to compare (e.g. `best-single`, `gaussian-r`,
+    /// `laplace`).
+    pub methods: Vec<String>,
+    /// Only these tasks (empty: every task of each category's database).
+    pub tasks: Vec<String>,
+    /// The lab's errors.
+    pub lab: LabErrors,
+    /// The paper's setting: no approach to contact (the hand closes at the planned
+    /// pose, see [`executed_palm`]) and collisions of the open hand fail (the
+    /// observer's rule) and are counted per method.
+    ///
+    /// PAPER-MODE PLANNER SWITCH (issue 19 item 5): the paper's kernel scales and
+    /// reachability treatment are the planner helper's library option; when it is on
+    /// main, [`run_novel`] passes `paper` to the planning here. Until then the plan
+    /// stage's planning runs with each method's default kernel in both settings.
+    pub paper: bool,
+}
+
+/// One task, method, object and placement, as graded.
+#[derive(Debug, Clone, Serialize)]
+pub struct NovelTrial {
+    /// The object.
+    pub object: String,
+    /// Its category.
+    pub category: Category,
+    /// `training`, `held-apart` or `file`.
+    pub origin: &'static str,
+    /// Placement index.
+    pub placement: usize,
+    /// The object's true pose.
+    pub base_from_object: PoseJson,
+    /// The task.
+    pub task: String,
+    /// The method.
+    pub method: String,
+    /// The observer's grade.
+    pub grade: Grade,
+    /// Its cause of a non-success.
+    pub cause: Option<FailureCause>,
+    /// Ferrari–Canny epsilon of the executed grasp (0: none or not force closure).
+    pub epsilon: f64,
+    /// Whether the executed grasp is force closure (`epsilon > 0`).
+    pub force_closure: bool,
+    /// Whether the open hand collides with the object or the table at the executed
+    /// palm pose (the paper's "initial collision"); `false` when nothing was executed.
+    pub collision: bool,
+    /// Whether a grasp was executed (planned, reachable).
+    pub executed: bool,
+    /// The observer's note (or the planner's reason).
+    pub note: String,
+    /// The executed palm pose, when executed.
+    pub palm: Option<PoseJson>,
+    /// Best fit's origin from the object's true origin (mm), when any model registered.
+    pub best_fit_offset_mm: Option<f64>,
+    /// Planning time of this method (ms).
+    pub plan_ms: f64,
+}
+
+/// Counts over a set of trials of one task (or all) and method.
+#[derive(Debug, Clone, Serialize)]
+pub struct NovelRow {
+    /// `category task`, or `all`.
+    pub task: String,
+    /// The method.
+    pub method: String,
+    /// Trials.
+    pub trials: usize,
+    /// Observer's successes.
+    pub success: usize,
+    /// Observer's partials.
+    pub partial: usize,
+    /// Observer's failures.
+    pub failure: usize,
+    /// `success / trials` in percent.
+    pub success_pct: f64,
+    /// `partial / trials` in percent.
+    pub partial_pct: f64,
+    /// `failure / trials` in percent.
+    pub failure_pct: f64,
+    /// Force closure in percent of trials.
+    pub force_closure_pct: f64,
+    /// Trials whose open hand collided at the executed pose.
+    pub collisions: usize,
+    /// Mean epsilon.
+    pub mean_epsilon: f64,
+    /// Non-successes by cause (`reachability`, `registration`, ...).
+    pub causes: BTreeMap<String, usize>,
+}
+
+impl NovelRow {
+    fn of<'a>(task: &str, method: &str, trials: impl Iterator<Item = &'a NovelTrial>) -> NovelRow {
+        let mut row = NovelRow {
+            task: task.to_string(),
+            method: method.to_string(),
+            trials: 0,
+            success: 0,
+            partial: 0,
+            failure: 0,
+            success_pct: 0.0,
+            partial_pct: 0.0,
+            failure_pct: 0.0,
+            force_closure_pct: 0.0,
+            collisions: 0,
+            mean_epsilon: 0.0,
+            causes: BTreeMap::new(),
+        };
+        let (mut fc, mut eps) = (0usize, 0.0);
+        for t in trials {
+            row.trials += 1;
+            match t.grade {
+                Grade::Success => row.success += 1,
+                Grade::Partial => row.partial += 1,
+                Grade::Failure => row.failure += 1,
+            }
+            if let Some(c) = t.cause {
+                *row.causes.entry(c.as_str().to_string()).or_default() += 1;
+            }
+            fc += usize::from(t.force_closure);
+            row.collisions += usize::from(t.collision);
+            eps += t.epsilon;
+        }
+        if row.trials > 0 {
+            let n = row.trials as f64;
+            let pct = |k: usize| 100.0 * k as f64 / n;
+            row.success_pct = pct(row.success);
+            row.partial_pct = pct(row.partial);
+            row.failure_pct = pct(row.failure);
+            row.force_closure_pct = pct(fc);
+            row.mean_epsilon = eps / n;
+        }
+        row
+    }
+}
+
+/// The rows of `trials`: per task (`category task`) and method, then per method
+/// over every task (`all`).
+pub fn novel_rows(trials: &[NovelTrial], tasks: &[String], methods: &[String]) -> Vec<NovelRow> {
+    let mut rows = Vec::new();
+    for task in tasks {
+        for method in methods {
+            rows.push(NovelRow::of(
+                task,
+                method,
+                trials
+                    .iter()
+                    .filter(|t| &t.method == method && &task_label(t.category, &t.task) == task),
+            ));
+        }
+    }
+    if tasks.len() > 1 {
+        for method in methods {
+            rows.push(NovelRow::of(
+                "all",
+                method,
+                trials.iter().filter(|t| &t.method == method),
+            ));
+        }
+    }
+    rows
+}
+
+/// `mug top`, `bottle side`, ...
+pub fn task_label(category: Category, task: &str) -> String {
+    format!("{category} {task}")
+}
+
+/// The result of the experiment.
+#[derive(Debug, Clone, Serialize)]
+pub struct NovelReport {
+    /// The seed.
+    pub seed: u64,
+    /// Placements per object.
+    pub placements: usize,
+    /// The methods.
+    pub methods: Vec<String>,
+    /// The tasks (`category task`).
+    pub tasks: Vec<String>,
+    /// The objects: name, category and origin.
+    pub objects: Vec<ObjectSummary>,
+    /// The lab's error sizes.
+    pub lab: LabErrors,
+    /// The hand–eye error drawn for this run (`[x, y, z, rx, ry, rz]`, m and rad).
+    pub hand_eye_error: [f64; 6],
+    /// The paper's setting (no approach to contact, collisions fail).
+    pub paper: bool,
+    /// Whether the hand approached to contact before closing.
+    pub approach_to_contact: bool,
+    /// One row per task and method, then per method over all tasks.
+    pub rows: Vec<NovelRow>,
+    /// Every trial.
+    pub trials: Vec<NovelTrial>,
+}
+
+/// An object as reported.
+#[derive(Debug, Clone, Serialize)]
+pub struct ObjectSummary {
+    /// Its name.
+    pub name: String,
+    /// Its category.
+    pub category: Category,
+    /// Where it came from.
+    pub origin: &'static str,
+}
+
+/// One category's database, its prepared models and its tasks.
+pub struct CategoryModels {
+    /// The database.
+    pub db: CategoryDb,
+    /// The models prepared for registration.
+    pub models: ModelSet,
+    /// The tasks run on this category.
+    pub tasks: Vec<String>,
+}
+
+impl CategoryModels {
+    /// Loads `category` from `dbs` and prepares its models; `tasks` filters its
+    /// database's tasks (empty: all).
+    pub fn load(
+        dbs: &mut Databases,
+        category: Category,
+        tasks: &[String],
+    ) -> Result<CategoryModels, NovelError> {
+        let fail = |problem: String| NovelError::Category {
+            category: category.to_string(),
+            problem,
+        };
+        let db = dbs
+            .get(category.name())
+            .map_err(|e| fail(e.to_string()))?
+            .clone();
+        let models = ModelSet::from_category(&db, &RegisterParams::default())
+            .map_err(|e| fail(format!("models: {e}")))?;
+        let tasks: Vec<String> = db
+            .file
+            .tasks
+            .iter()
+            .filter(|t| tasks.is_empty() || tasks.contains(t))
+            .cloned()
+            .collect();
+        Ok(CategoryModels { db, models, tasks })
+    }
+}
+
+/// The cell the experiment runs in.
+pub struct NovelCell<'a> {
+    /// The configuration.
+    pub config: &'a CellConfig,
+    /// The robot (planning, joints, forward kinematics).
+    pub robot: Arc<Robot>,
+    /// The hand (collision of the open hand).
+    pub hand: &'a HandModel,
+    /// The simulated observer.
+    pub observer: &'a Observer,
+}
+
+/// The palm pose at which the hand closes, from the pose the arm reached.
+///
+/// APPROACH-TO-CONTACT SWITCH (issue 17 item 1): the one place where the hand's
+/// approach along its palm axis until first contact goes, once
+/// `quality::autograsp` has it; with `paper` the hand closes where the arm stands,
+/// as in the paper's experiments. Until then both settings close at `reached`.
+pub fn executed_palm(
+    _hand: &HandModel,
+    _object: &GraspObject,
+    _base_from_object: &Pose,
+    reached: &Pose,
+    _spread_rad: f64,
+    _paper: bool,
+) -> Pose {
+    *reached
+}
+
+/// Whether the approach to contact of [`executed_palm`] is in effect.
+pub const APPROACH_TO_CONTACT: bool = false;
+
+/// Seeds of one object placement: placement, camera noise, registration, joints.
+fn unit_seeds(seed: u64, unit: u64) -> [u64; 4] {
+    [0, 1, 2, 3].map(|k| instance_seed(seed ^ 0x006e_6f76_656c, unit * 4 + k))
+}
+
+/// The cell's placement area ([`crate::cell::harness::PLACEMENT_X_M`], `_Y_M`).
+pub fn placement_region(config: &CellConfig) -> PlacementRegion {
+    use crate::cell::harness::{PLACEMENT_X_M, PLACEMENT_Y_M};
+    PlacementRegion {
+        center_xy_m: [
+            (PLACEMENT_X_M.0 + PLACEMENT_X_M.1) / 2.0,
+            (PLACEMENT_Y_M.0 + PLACEMENT_Y_M.1) / 2.0,
+        ],
+        half_extent_xy_m: [
+            (PLACEMENT_X_M.1 - PLACEMENT_X_M.0) / 2.0,
+            (PLACEMENT_Y_M.1 - PLACEMENT_Y_M.0) / 2.0,
+        ],
+        table_height_m: config.table.height_m,
+    }
+}
+
+/// Progress steps of one object placement: one per task and method.
+pub fn steps_per_placement(tasks: usize, methods: usize) -> u64 {
+    (tasks * methods) as u64
+}
+
+/// Runs every object at `options.placements` placements through the chain;
+/// `models` holds each object's category; `progress` advances per task and method.
+pub fn run_novel(
+    cell: &NovelCell,
+    dbs: &mut Databases,
+    models: &HashMap<Category, CategoryModels>,
+    objects: &[NovelObject],
+    options: &NovelOptions,
+    progress: Option<&indicatif::ProgressBar>,
+) -> Result<NovelReport, NovelError> {
+    let bad = |what: &str, problem: &str| NovelError::Option {
+        what: what.to_string(),
+        problem: problem.to_string(),
+    };
+    if options.placements == 0 {
+        return Err(bad("placements", "must be at least 1"));
+    }
+    if options.methods.is_empty() {
+        return Err(bad("methods", "give at least one method"));
+    }
+    for m in &options.methods {
+        if crate::cell::plan::method_kernel(m).is_none() {
+            return Err(bad(
+                &format!("method {m:?}"),
+                &format!("unknown (use {})", crate::cell::plan::METHODS.join(", ")),
+            ));
+        }
+    }
+    options
+        .lab
+        .validate()
+        .map_err(|e| bad("lab errors", &e.to_string()))?;
+    let mut tasks: Vec<String> = Vec::new();
+    for object in objects {
+        let m = models
+            .get(&object.category)
+            .ok_or_else(|| NovelError::Category {
+                category: object.category.to_string(),
+                problem: "no database loaded".into(),
+            })?;
+        for t in &m.tasks {
+            let label = task_label(object.category, t);
+            if !tasks.contains(&label) {
+                tasks.push(label);
+            }
+        }
+    }
+    if tasks.is_empty() {
+        return Err(bad(
+            "tasks",
+            "no task of the objects' categories was asked for",
+        ));
+    }
+    if let Some(p) = progress {
+        let steps: u64 = objects
+            .iter()
+            .map(|o| steps_per_placement(models[&o.category].tasks.len(), options.methods.len()))
+            .sum();
+        p.set_length(steps * options.placements as u64);
+    }
+    let hand_eye_error = options.lab.draw_hand_eye(options.seed);
+    let region = placement_region(cell.config);
+    let segment = SegmentParams::for_cell(cell.config);
+    let calibrated = cell.config.base_from_camera();
+    let safety = SafetyCheck::new(
+        Arc::clone(&cell.robot),
+        SafetyLimits::from_cell(cell.config, &cell.robot),
+    );
+    let motions = ExecutorConfig::from_cell(cell.config);
+    let mut trials = Vec::new();
+    for (o, object) in objects.iter().enumerate() {
+        let category = &models[&object.category];
+        for placement in 0..options.placements {
+            let unit = (placement * objects.len() + o) as u64;
+            let [place_seed, noise_seed, register_seed, joint_seed] =
+                unit_seeds(options.seed, unit);
+            let lab = LabDraw {
+                calibrated_from_true_camera: hand_eye_error,
+                joint_error_rad: options.lab.draw_joints(joint_seed),
+            };
+            let base_from_object = region.place(&object.mesh, place_seed);
+            let object_fail = |problem: String| NovelError::Object {
+                object: object.name.clone(),
+                problem,
+            };
+            // 1. The camera, from its true mount.
+            let mut scene = Scene::new(Some(TableBox::from(&cell.config.table)));
+            scene
+                .add(&object.name, object.mesh.clone(), base_from_object)
+                .map_err(|e| object_fail(e.to_string()))?;
+            let camera = DepthCamera::from_config(
+                &cell.config.camera,
+                lab.true_base_from_camera(&calibrated),
+            );
+            let cloud = camera.render(&scene, noise_seed).to_cloud();
+            // 2. Perception, with the calibrated mount.
+            let fits = perceive_trial(
+                unit,
+                &cloud,
+                &calibrated,
+                &segment,
+                &category.models,
+                register_seed,
+            )
+            .map_err(|e| object_fail(format!("perception: {e}")))?;
+            let best_fit = best_fit(&fits);
+            let best_fit_offset_mm = best_fit
+                .as_ref()
+                .map(|f| pose_error(f, &base_from_object).0 * 1e3);
+            let grasp_object = GraspObject::new(&object.mesh, Path::new(&object.name))
+                .map_err(|e| object_fail(e.to_string()))?
+                .with_table(Some(
+                    cell.config.table.height_m - base_from_object.translation.vector.z,
+                ));
+            for task in &category.tasks {
+                for method in &options.methods {
+                    let started = std::time::Instant::now();
+                    let request = TrialRequest::new(unit, 0, object.category.name(), task, method)
+                        .map_err(|e| object_fail(e.to_string()))?;
+                    // 3. Planning as the plan stage does it.
+                    let planned = plan_trial(cell.config, &cell.robot, dbs, &request, &fits)
+                        .and_then(|mut g| {
+                            executable_joints(
+                                &cell.robot,
+                                &safety,
+                                &motions,
+                                &mut g,
+                                &crate::cell::harness::HOME_JOINTS_RAD,
+                            )
+                            .map(|()| g)
+                        });
+                    let plan_ms = started.elapsed().as_secs_f64() * 1e3;
+                    let (attempt, palm) = match planned {
+                        Err(failure) => (
+                            Attempt::NotPlanned {
+                                cause: crate::cell::log::plan_cause(failure.cause),
+                                detail: failure.detail,
+                            },
+                            None,
+                        ),
+                        Ok(grasp) => {
+                            // 4. Execution: the joints plus the lab's errors, then
+                            // the approach (if any).
+                            let reached = match grasp.joints {
+                                Some(q) => cell.robot.arm().palm(&lab.executed_joints(&q)),
+                                None => grasp.pose,
+                            };
+                            let palm = executed_palm(
+                                cell.hand,
+                                &grasp_object,
+                                &base_from_object,
+                                &reached,
+                                grasp.spread_rad,
+                                options.paper,
+                            );
+                            (
+                                Attempt::Executed {
+                                    base_from_palm: palm,
+                                    spread_rad: grasp.spread_rad,
+                                    best_fit,
+                                },
+                                Some((palm, grasp.spread_rad)),
+                            )
+                        }
+                    };
+                    // 5. The observer.
+                    let seen: Observation = cell
+                        .observer
+                        .grade(&object.name, &object.mesh, &base_from_object, &attempt)
+                        .map_err(|e| object_fail(e.to_string()))?;
+                    let collision = palm.is_some_and(|(p, spread)| {
+                        let object_from_palm = base_from_object.inverse() * p;
+                        open_hand_collision(cell.hand, &grasp_object, &object_from_palm, spread)
+                            .is_some()
+                    });
+                    trials.push(NovelTrial {
+                        object: object.name.clone(),
+                        category: object.category,
+                        origin: object.origin,
+                        placement,
+                        base_from_object: PoseJson::from(&base_from_object),
+                        task: task.clone(),
+                        method: method.clone(),
+                        grade: seen.grade,
+                        cause: seen.cause,
+                        epsilon: seen.epsilon,
+                        force_closure: seen.epsilon > 0.0,
+                        collision,
+                        executed: palm.is_some(),
+                        note: seen.note,
+                        palm: palm.map(|(p, _)| PoseJson::from(&p)),
+                        best_fit_offset_mm,
+                        plan_ms,
+                    });
+                    if let Some(p) = progress {
+                        p.inc(1);
+                    }
+                }
+            }
+        }
+    }
+    Ok(NovelReport {
+        seed: options.seed,
+        placements: options.placements,
+        methods: options.methods.clone(),
+        rows: novel_rows(&trials, &tasks, &options.methods),
+        tasks,
+        objects: objects
+            .iter()
+            .map(|o| ObjectSummary {
+                name: o.name.clone(),
+                category: o.category,
+                origin: o.origin,
+            })
+            .collect(),
+        lab: options.lab,
+        hand_eye_error,
+        paper: options.paper,
+        approach_to_contact: APPROACH_TO_CONTACT,
+        trials,
+    })
+}
+
+/// The best-fitting model's pose (lowest eps among the registered), for the
+/// observer's cause of a failure.
+fn best_fit(fits: &Fits) -> Option<Pose> {
+    fits.fits()
+        .ok()?
+        .iter()
+        .filter(|f| f.status().is_ok_and(|s| s != FitStatus::Failed) && f.eps.is_finite())
+        .min_by(|a, b| a.eps.total_cmp(&b.eps))
+        .and_then(|f| f.base_from_model.to_pose("fit").ok())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn trial(task: &str, method: &str, grade: Grade, eps: f64, collision: bool) -> NovelTrial {
+        NovelTrial {
+            object: "o".into(),
+            category: Category::Mug,
+            origin: "held-apart",
+            placement: 0,
+            base_from_object: PoseJson::from(&Pose::identity()),
+            task: task.into(),
+            method: method.into(),
+            grade,
+            cause: (grade != Grade::Success).then_some(FailureCause::ShapeDissimilarity),
+            epsilon: eps,
+            force_closure: eps > 0.0,
+            collision,
+            executed: true,
+            note: String::new(),
+            palm: None,
+            best_fit_offset_mm: None,
+            plan_ms: 1.0,
+        }
+    }
+
+    #[test]
+    fn rows_count_grades_causes_collisions_and_force_closure_per_task_and_method() {
+        let trials = vec![
+            trial("top", "laplace", Grade::Success, 0.1, false),
+            trial("top", "laplace", Grade::Partial, 0.02, false),
+            trial("top", "laplace", Grade::Failure, 0.0, true),
+            trial("side", "laplace", Grade::Success, 0.2, false),
+            trial("top", "best-single", Grade::Failure, 0.0, true),
+        ];
+        let tasks = vec!["mug top".to_string(), "mug side".to_string()];
+        let methods = vec!["laplace".to_string(), "best-single".to_string()];
+        let rows = novel_rows(&trials, &tasks, &methods);
+        assert_eq!(rows.len(), 6, "2 tasks x 2 methods, then all x 2");
+        let top = &rows[0];
+        assert_eq!(
+            (top.task.as_str(), top.method.as_str()),
+            ("mug top", "laplace")
+        );
+        assert_eq!(
+            (top.trials, top.success, top.partial, top.failure),
+            (3, 1, 1, 1)
+        );
+        assert_eq!(top.collisions, 1);
+        assert!((top.force_closure_pct - 200.0 / 3.0).abs() < 1e-9);
+        assert_eq!(top.causes.get("shape-dissimilarity"), Some(&2));
+        let all = &rows[4];
+        assert_eq!((all.task.as_str(), all.trials, all.success), ("all", 4, 2));
+        assert_eq!(rows[5].collisions, 1);
+        assert_eq!(rows[3].trials, 0, "best single had no side trial");
+    }
+}
