@@ -132,7 +132,10 @@ pub fn plan_trial(
     }
     let grasps = crate::plan::category::example_grasps(db, &model_fits, task)
         .map_err(|e| other(e.to_string()))?;
-    let options = PlanOptions::new(kernel, config);
+    let options = PlanOptions {
+        weights: crate::plan::category::weights(db),
+        ..PlanOptions::new(kernel, config)
+    };
     let outcome = plan(
         &model_fits,
         &grasps,

@@ -147,12 +147,14 @@ pub struct PlanArgs {
     /// Fit weight.
     #[arg(long, value_enum, default_value_t = FitWeightName::EpsSigma)]
     pub fit_weight: FitWeightName,
-    /// lambda_psi of the stability weight psi(q) = 1 - exp(-lambda_psi q).
-    #[arg(long, default_value_t = 10.0)]
-    pub lambda_psi: f64,
-    /// lambda_eps of the fit weight (1/m^2).
-    #[arg(long, default_value_t = 1e4)]
-    pub lambda_eps_per_m2: f64,
+    /// lambda_psi of the stability weight psi(q) = 1 - exp(-lambda_psi q)
+    /// [default: the database's calibrated value, else 10].
+    #[arg(long)]
+    pub lambda_psi: Option<f64>,
+    /// lambda_eps of the fit weight (1/m^2) [default: the database's calibrated
+    /// value, else 1e4].
+    #[arg(long)]
+    pub lambda_eps_per_m2: Option<f64>,
     /// Skip reachability (the paper's simulation setting: only the table bound).
     #[arg(long)]
     pub no_reach: bool,
@@ -327,8 +329,15 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
         (None, None) => unreachable!("clap requires --db or --grasps"),
     };
     let mut options = PlanOptions::new(args.kernel.kernel(), &cell);
-    options.weights.lambda_psi = args.lambda_psi;
-    options.weights.lambda_eps_per_m2 = args.lambda_eps_per_m2;
+    if let Some(db) = &db {
+        options.weights = crate::plan::category::weights(db);
+    }
+    if let Some(l) = args.lambda_psi {
+        options.weights.lambda_psi = l;
+    }
+    if let Some(l) = args.lambda_eps_per_m2 {
+        options.weights.lambda_eps_per_m2 = l;
+    }
     options.weights.fit = match args.fit_weight {
         FitWeightName::Eps => FitWeight::Eps,
         FitWeightName::EpsSigma => FitWeight::EpsSigma,
