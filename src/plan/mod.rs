@@ -28,13 +28,16 @@ pub mod nelder_mead;
 pub mod objective;
 pub mod planner;
 pub mod reach;
+pub mod refine;
+pub mod seen;
 pub mod synthetic;
 pub mod weights;
 
 pub use kernel::Kernel;
 pub use mode::{PaperProtocol, PlanMode};
-pub use planner::{plan, BestSingle, GraspPlan, PlanOptions, PlanOutcome, PlannedGrasp};
+pub use planner::{plan, plan_with, BestSingle, GraspPlan, PlanOptions, PlanOutcome, PlannedGrasp};
 pub use reach::Reachability;
+pub use seen::{SeenSurface, SeenSurfaceOptions};
 pub use weights::{FitWeight, Weights};
 
 use crate::geometry::{Pose, PoseParams};

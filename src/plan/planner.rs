@@ -48,6 +48,7 @@ use super::chart::{rotated_about_own_axes, Chart};
 use super::nelder_mead::{nelder_mead_with_steps, NelderMeadOptions};
 use super::objective::Objective;
 use super::reach::Reachability;
+use super::seen::{Intrusion, SeenSurface};
 use super::{ExampleGrasp, Kernel, ModelFit, PlanError, Weights};
 use crate::config::CellConfig;
 use crate::geometry::{
@@ -142,13 +143,32 @@ pub enum Stage {
     Pregrasp,
 }
 
+/// What stops a grasp.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Blocked {
+    /// The arm cannot reach the pose.
+    Unreachable(UnreachableReason),
+    /// The open hand enters the seen surface at the grasp or along its approach.
+    SeenSurface(Intrusion),
+}
+
+impl std::fmt::Display for Blocked {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Blocked::Unreachable(r) => write!(f, "unreachable: {r}"),
+            Blocked::SeenSurface(i) => write!(f, "blocked by the seen surface: {i}"),
+        }
+    }
+}
+
 /// Why a grasp is infeasible.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Infeasible {
     /// The pose that failed.
     pub stage: Stage,
     /// Why.
-    pub reason: UnreachableReason,
+    pub reason: Blocked,
 }
 
 impl std::fmt::Display for Infeasible {
@@ -157,7 +177,7 @@ impl std::fmt::Display for Infeasible {
             Stage::Grasp => "grasp",
             Stage::Pregrasp => "pre-grasp",
         };
-        write!(f, "{stage} unreachable: {}", self.reason)
+        write!(f, "{stage} {}", self.reason)
     }
 }
 
@@ -308,6 +328,8 @@ struct Feasible {
 /// grasp's solution first, then from `pre_seeds`.
 struct Checker<'a> {
     reach: &'a dyn Reachability,
+    /// The seen surface the open hand must not enter (with its approach).
+    seen: Option<&'a SeenSurface<'a>>,
     offset_m: f64,
     checks: usize,
 }
@@ -325,9 +347,15 @@ impl Checker<'_> {
         let fail = |stage| {
             move |u: crate::robot::Unreachable| Infeasible {
                 stage,
-                reason: u.reason,
+                reason: Blocked::Unreachable(u.reason),
             }
         };
+        if let Some(hit) = self.seen.and_then(|s| s.intrusion(pose, spread_rad)) {
+            return Err(Infeasible {
+                stage: Stage::Grasp,
+                reason: Blocked::SeenSurface(hit),
+            });
+        }
         let reach = |palm: &Pose, seeds: &[ArmJoints]| {
             if quick {
                 self.reach.reach_near(palm, &hand, seeds)
@@ -358,6 +386,11 @@ impl Checker<'_> {
         let hand = open_hand(spread_rad);
         self.checks += 1;
         let (reached, grasp) = self.reach.repair_near(pose, &hand, seeds)?;
+        if let Some(seen) = self.seen {
+            if seen.intrusion(&reached, spread_rad).is_some() {
+                return None;
+            }
+        }
         self.checks += 1;
         let pre = pregrasp_pose(&reached, self.offset_m);
         let pre_seeds: Vec<ArmJoints> = std::iter::once(grasp.joints)
@@ -537,6 +570,20 @@ pub fn plan(
     options: &PlanOptions,
     reach: Option<&dyn Reachability>,
 ) -> Result<PlanOutcome, PlanError> {
+    plan_with(fits, grasps, task, options, reach, None)
+}
+
+/// [`plan`] with the object's seen surface as an obstacle (when reachability is
+/// checked): a grasp whose open hand enters it, at the grasp or along the
+/// approach, is infeasible like an unreachable one, for the plan and best single.
+pub fn plan_with(
+    fits: &[ModelFit],
+    grasps: &[ExampleGrasp],
+    task: &str,
+    options: &PlanOptions,
+    reach: Option<&dyn Reachability>,
+    seen: Option<&SeenSurface>,
+) -> Result<PlanOutcome, PlanError> {
     if !options.z_min_m.is_finite() {
         return Err(PlanError::BadValue {
             what: "plan z_min_m".into(),
@@ -575,6 +622,7 @@ pub fn plan(
 
     let mut checker = reach.map(|reach| Checker {
         reach,
+        seen,
         offset_m: options.pregrasp_offset_m,
         checks: 0,
     });
@@ -1099,7 +1147,7 @@ mod tests {
         assert_eq!(unc.unreachable.stage, Stage::Grasp);
         assert!(matches!(
             unc.unreachable.reason,
-            UnreachableReason::OutsideWorkspace { .. }
+            Blocked::Unreachable(UnreachableReason::OutsideWorkspace { .. })
         ));
         // The baseline is the same grasp: repaired the same way.
         let single = &out.best_single;
@@ -1163,6 +1211,40 @@ mod tests {
             assert!(out.plan.unconstrained_optimum.is_none());
             assert_eq!(out.plan.constrained_runs, 0);
         }
+    }
+
+    /// Issue 17: a palm pose planned inside the object's seen points is rejected, for
+    /// the plan and for best single; the grasp found instead clears the points along
+    /// its whole approach.
+    #[test]
+    fn a_palm_inside_the_seen_points_is_rejected() {
+        use crate::plan::seen::{tests::cylinder_cloud, SeenSurface, SeenSurfaceOptions};
+        let robot = crate::robot::shipped_robot();
+        let hand = crate::quality::autograsp::tests::hand_of(&robot);
+        let cloud = cylinder_cloud();
+        let seen = SeenSurface::new(&hand, &cloud, SeenSurfaceOptions::default()).unwrap();
+        // The model's side grasp puts the palm on the cylinder's axis, facing +x.
+        let fits = vec![fit("cyl", [0.6, 0.0, 0.0, 0.0, 0.0, 0.0], 1e-5)];
+        let mut g = grasp(0, "side", [0.0, 0.0, 0.05, 0.0, PI / 2.0, 0.0], 0.2);
+        g.sigma = [0.01, 0.01, 0.01, 0.1, 0.1, 0.1];
+        let grasps = vec![g];
+        let everywhere = Region(|_: &Pose| true);
+        let options = PlanOptions::with_kernel(Kernel::LAPLACE_DEFAULT);
+        let blind = plan(&fits, &grasps, "side", &options, Some(&everywhere)).unwrap();
+        assert!(seen.intrusion(&blind.plan.grasp.pose, 0.0).is_some());
+        let out =
+            plan_with(&fits, &grasps, "side", &options, Some(&everywhere), Some(&seen)).unwrap();
+        let unc = out.plan.unconstrained_optimum.as_ref().expect("rejected");
+        assert!(matches!(unc.unreachable.reason, Blocked::SeenSurface(_)), "{unc:?}");
+        assert!(unc.unreachable.to_string().contains("seen surface"));
+        for g in [&out.plan.grasp, &out.best_single.grasp] {
+            assert!(g.reachable, "{g:?}");
+            assert_eq!(seen.intrusion(&g.pose, g.spread_rad), None, "{g:?}");
+            assert!(g.log_objective < unc.log_objective);
+        }
+        // Backed off toward -x (where the approach comes from), not far off.
+        let x = out.plan.grasp.pose.translation.x;
+        assert!(x < 0.6 && x > 0.3, "{x}");
     }
 
     #[test]
