@@ -225,10 +225,20 @@ pub(crate) mod tests {
         // The same orientation 0.25 m back: clear, and so is its approach.
         let clear = pose_from_params(&[0.35, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
         assert_eq!(seen.intrusion(&clear, 0.0), None);
-        // Clear at the grasp but not along the approach: palm just beyond the far side,
-        // having come through the cylinder.
-        let through = pose_from_params(&[0.75, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
-        let hit = seen.intrusion(&through, 0.0).expect("the approach crosses it");
+        // Clear at the grasp but not along the approach: the first palm position
+        // beyond the cylinder where the hand itself is clear, come through it.
+        let at_grasp_only = SeenSurfaceOptions {
+            approach_m: 0.0,
+            ..SeenSurfaceOptions::default()
+        };
+        let only = SeenSurface::new(&hand, &cylinder_cloud(), at_grasp_only).unwrap();
+        let beyond = |x: f64| pose_from_params(&[x, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
+        let clear_x = (0..60)
+            .map(|k| 0.6 + 0.005 * k as f64)
+            .find(|&x| only.intrusion(&beyond(x), 0.0).is_none())
+            .expect("the hand clears the cylinder somewhere beyond it");
+        assert!(clear_x < 0.6 + 0.1, "{clear_x}");
+        let hit = seen.intrusion(&beyond(clear_x), 0.0).expect("the approach crosses it");
         assert!(hit.behind_grasp_m > 0.0, "{hit:?}");
         let empty = PointCloud::from_points(Vec::new());
         assert!(SeenSurface::new(&hand, &empty, SeenSurfaceOptions::default()).is_err());
