@@ -166,7 +166,11 @@ mod tests {
         // The weights now tell the fits apart: the best weighs e^(8/3 - 1/3) times the worst.
         let ratio = c.phi_range[0] / c.phi_range[1];
         assert!((ratio.ln() - 7.0 / 3.0).abs() < 1e-9, "{ratio}");
-        assert!(c.psi_range[0] < 0.4 && c.psi_range[1] > 0.75, "{:?}", c.psi_range);
+        assert!(
+            c.psi_range[0] < 0.4 && c.psi_range[1] > 0.75,
+            "{:?}",
+            c.psi_range
+        );
         c.validate("test").unwrap();
     }
 
@@ -180,6 +184,10 @@ mod tests {
         assert!(e.contains("eps + sigma"), "{e}");
         let mut c = calibrate(&[0.1], &[1e-6], source()).unwrap();
         c.lambda_psi = f64::NAN;
-        assert!(c.validate("db").unwrap_err().to_string().contains("lambda_psi"));
+        assert!(c
+            .validate("db")
+            .unwrap_err()
+            .to_string()
+            .contains("lambda_psi"));
     }
 }

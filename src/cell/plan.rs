@@ -155,8 +155,17 @@ pub fn plan_trial(
     let grasp = if best_single {
         outcome.best_single.grasp
     } else if method == "laplace-sim" {
-        refine_trial(config, robot, db, &model_fits, &grasps, task, &options, outcome.plan.grasp)
-            .map_err(other)?
+        refine_trial(
+            config,
+            robot,
+            db,
+            &model_fits,
+            &grasps,
+            task,
+            &options,
+            outcome.plan.grasp,
+        )
+        .map_err(other)?
     } else {
         outcome.plan.grasp
     };

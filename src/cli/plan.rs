@@ -9,16 +9,16 @@ use crate::geometry::parse_numbers;
 use crate::geometry::{params_from_pose, Pose};
 use crate::plan::category::example_grasps;
 use crate::plan::input::{read_fits_input, read_grasps, FitsInput, Unregistered};
-use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
 use crate::plan::objective::Objective;
 use crate::plan::refine::{refine_in_sim, Refined, SimModel, SimRefineOptions};
+use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
 use crate::plan::{
     plan, plan_with, FitWeight, Kernel, PaperProtocol, PlanMode, PlanOptions, PlanOutcome,
     PlannedGrasp, Reachability, SeenSurface, SeenSurfaceOptions,
 };
 use crate::quality::autograsp::GraspObject;
-use crate::robot::hand::HandModel;
 use crate::register::{fits_input, register_all, ModelSet, RegisterParams, RegistrationStatus};
+use crate::robot::hand::HandModel;
 use crate::robot::Robot;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
@@ -239,9 +239,9 @@ pub fn refine(
     let objects = fits
         .iter()
         .map(|f| {
-            let i = db
-                .model_index(&f.name)
-                .with_context(|| format!("fit {} names no model of {}", f.name, db.dir.display()))?;
+            let i = db.model_index(&f.name).with_context(|| {
+                format!("fit {} names no model of {}", f.name, db.dir.display())
+            })?;
             Ok(
                 GraspObject::new(&db.meshes[i], &db.dir.join(&db.file.models[i].mesh))?
                     .with_table(db.file.table_height_m),
@@ -422,10 +422,16 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     };
     let seen = target
         .as_ref()
-        .map(|c| SeenSurface::new(&hand, c, SeenSurfaceOptions {
-            approach_m: options.pregrasp_offset_m,
-            ..SeenSurfaceOptions::default()
-        }))
+        .map(|c| {
+            SeenSurface::new(
+                &hand,
+                c,
+                SeenSurfaceOptions {
+                    approach_m: options.pregrasp_offset_m,
+                    ..SeenSurfaceOptions::default()
+                },
+            )
+        })
         .transpose()?;
     let reach = robot.as_ref().map(|r| r as &dyn Reachability);
     let outcome = plan_with(&fits, &grasps, &args.task, &options, reach, seen.as_ref())
@@ -434,7 +440,14 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
         (false, _) => None,
         (true, None) => anyhow::bail!("--refine-sim needs --db (the models' meshes)"),
         (true, Some(db)) => Some(refine(
-            &hand, db, &fits, &grasps, &args.task, &options, reach, seen.as_ref(),
+            &hand,
+            db,
+            &fits,
+            &grasps,
+            &args.task,
+            &options,
+            reach,
+            seen.as_ref(),
             &outcome.plan.grasp,
         )?),
     };
@@ -649,8 +662,14 @@ fn sim_bench(
             .collect();
         let grasps = example_grasps(&db, &fits, task)?;
         let (t, out) = time_ms(|| {
-            plan(&fits, &grasps, task, &options, Some(robot as &dyn Reachability))
-                .expect("the database's problems are valid")
+            plan(
+                &fits,
+                &grasps,
+                task,
+                &options,
+                Some(robot as &dyn Reachability),
+            )
+            .expect("the database's problems are valid")
         });
         plain.push(t);
         let start = Instant::now();

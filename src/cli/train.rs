@@ -1,20 +1,20 @@
 //! `cell train`: build a category database from a teach-in file, and
 //! `cell train suggest-grasps`: propose a teach-in file for procedural models.
 
+use crate::category::calibrate::{calibrate, LooSource, WeightCalibration};
 use crate::category::suggest::{suggest_teach_file, SuggestModel, SuggestOptions};
 use crate::category::teach::TeachFile;
-use crate::category::calibrate::{calibrate, LooSource, WeightCalibration};
 use crate::category::train::{train, write_database, TrainOptions};
+use crate::category::CategoryDb;
+use crate::config::CellConfig;
 use crate::eval::experiment::Registrar;
 use crate::eval::registration::CategoryRegistrar;
 use crate::eval::view::{partial_view, PlacementRegion};
-use crate::sim::camera::DepthCamera;
-use crate::sim::scene::TableBox;
-use crate::category::CategoryDb;
-use crate::config::CellConfig;
 use crate::mesh::procedural::{Category, Params};
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
+use crate::sim::camera::DepthCamera;
+use crate::sim::scene::TableBox;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};

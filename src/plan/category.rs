@@ -118,7 +118,9 @@ mod tests {
     #[test]
     fn the_shipped_databases_carry_calibrated_weights_and_they_are_used() {
         for category in ["mug", "bottle", "hammer", "knife"] {
-            let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("db").join(category);
+            let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("db")
+                .join(category);
             let db = CategoryDb::load(&dir).unwrap();
             let stored = db.file.weights.as_ref().expect("calibrated by cell train");
             let w = weights(&db);

@@ -193,7 +193,14 @@ impl Chart {
         } else {
             v * (2.0 * n.atan2(q.w) / n)
         };
-        [t.x, t.y, (t.z - self.z_min_m).max(0.0).sqrt(), w.x, w.y, w.z]
+        [
+            t.x,
+            t.y,
+            (t.z - self.z_min_m).max(0.0).sqrt(),
+            w.x,
+            w.y,
+            w.z,
+        ]
     }
 }
 
@@ -289,10 +296,8 @@ mod tests {
     fn charts_round_trip_and_are_centred() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         for _ in 0..200 {
-            let centre = Isometry3::from_parts(
-                Translation3::new(0.6, 0.1, 0.3),
-                random_rotation(&mut rng),
-            );
+            let centre =
+                Isometry3::from_parts(Translation3::new(0.6, 0.1, 0.3), random_rotation(&mut rng));
             let chart = Chart::at(&centre, 0.05);
             let c = chart.coordinates(&centre);
             assert!(c[3..].iter().all(|v| v.abs() < 1e-12));

@@ -348,7 +348,10 @@ mod tests {
             &NelderMeadOptions::default(),
         );
         assert_eq!(&seen[..3], &[[0.0, 0.0], [0.1, 0.0], [0.0, -0.05]]);
-        assert!((r.x[0] - 0.3).abs() < 1e-2 && (r.x[1] + 0.2).abs() < 1e-2, "{r:?}");
+        assert!(
+            (r.x[0] - 0.3).abs() < 1e-2 && (r.x[1] + 0.2).abs() < 1e-2,
+            "{r:?}"
+        );
     }
 
     #[test]

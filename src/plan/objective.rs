@@ -504,8 +504,14 @@ mod tests {
             }
             let d = pose_difference(&b, &a);
             let angle = (d[3] * d[3] + d[4] * d[4] + d[5] * d[5]).sqrt();
-            assert!((angle - five).abs() < 0.1f64.to_radians(), "{axis:?}: {angle}");
-            let grasps = vec![grasp(0, "side", a_params, 0.2), grasp(1, "side", b_params, 0.2)];
+            assert!(
+                (angle - five).abs() < 0.1f64.to_radians(),
+                "{axis:?}: {angle}"
+            );
+            let grasps = vec![
+                grasp(0, "side", a_params, 0.2),
+                grasp(1, "side", b_params, 0.2),
+            ];
             let mut grasps = grasps;
             grasps[1].spread_rad = grasps[0].spread_rad;
             let half = model * rotated_about_own_axes(&a, w.map(|v| 0.5 * v));

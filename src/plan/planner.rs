@@ -51,9 +51,7 @@ use super::reach::Reachability;
 use super::seen::{Intrusion, SeenSurface};
 use super::{ExampleGrasp, Kernel, ModelFit, PlanError, Weights};
 use crate::config::CellConfig;
-use crate::geometry::{
-    pose_error, pose_from_params, Pose, PoseJson,
-};
+use crate::geometry::{pose_error, pose_from_params, Pose, PoseJson};
 use crate::robot::ik::IkSolution;
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, UnreachableReason};
@@ -764,13 +762,9 @@ fn best_reachable(
             }
             checked.push(point.pose);
             budget -= 1;
-            if let Ok(f) = checker.check(
-                &point.pose,
-                problem.spread_at(&point.pose),
-                &[],
-                &[],
-                false,
-            ) {
+            if let Ok(f) =
+                checker.check(&point.pose, problem.spread_at(&point.pose), &[], &[], false)
+            {
                 feasible.push((point, f));
             }
         }
@@ -1183,7 +1177,10 @@ mod tests {
             let out = plan(&fits, &grasps, "top", &options, Some(&region)).unwrap();
             let single = &out.best_single;
             assert_eq!(single.grasp_index, 0);
-            let unrepaired = single.unrepaired.as_ref().expect("the grasp was out of reach");
+            let unrepaired = single
+                .unrepaired
+                .as_ref()
+                .expect("the grasp was out of reach");
             assert!((unrepaired.pose.translation.x - 0.66).abs() < 1e-9);
             for g in [&single.grasp, &out.plan.grasp] {
                 assert!(g.reachable && g.joints.is_some() && g.pregrasp_joints.is_some());
@@ -1232,10 +1229,20 @@ mod tests {
         let options = PlanOptions::with_kernel(Kernel::LAPLACE_DEFAULT);
         let blind = plan(&fits, &grasps, "side", &options, Some(&everywhere)).unwrap();
         assert!(seen.intrusion(&blind.plan.grasp.pose, 0.0).is_some());
-        let out =
-            plan_with(&fits, &grasps, "side", &options, Some(&everywhere), Some(&seen)).unwrap();
+        let out = plan_with(
+            &fits,
+            &grasps,
+            "side",
+            &options,
+            Some(&everywhere),
+            Some(&seen),
+        )
+        .unwrap();
         let unc = out.plan.unconstrained_optimum.as_ref().expect("rejected");
-        assert!(matches!(unc.unreachable.reason, Blocked::SeenSurface(_)), "{unc:?}");
+        assert!(
+            matches!(unc.unreachable.reason, Blocked::SeenSurface(_)),
+            "{unc:?}"
+        );
         assert!(unc.unreachable.to_string().contains("seen surface"));
         for g in [&out.plan.grasp, &out.best_single.grasp] {
             assert!(g.reachable, "{g:?}");

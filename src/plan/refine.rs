@@ -230,9 +230,15 @@ pub fn refine_in_sim(
                 if eps <= best.1 + 1e-12 {
                     continue;
                 }
-                let Some(grasp) =
-                    feasible(&best.0, pose, spread, reach, seen, pregrasp_offset_m, log_objective)
-                else {
+                let Some(grasp) = feasible(
+                    &best.0,
+                    pose,
+                    spread,
+                    reach,
+                    seen,
+                    pregrasp_offset_m,
+                    log_objective,
+                ) else {
                     infeasible += 1;
                     continue;
                 };
@@ -312,8 +318,7 @@ mod tests {
     /// reports is the simulator's.
     #[test]
     fn laplace_sim_is_never_worse_than_its_start() {
-        let db =
-            CategoryDb::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug")).unwrap();
+        let db = CategoryDb::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug")).unwrap();
         let robot = crate::robot::shipped_robot();
         let hand = crate::quality::autograsp::tests::hand_of(&robot);
         let weights = crate::plan::category::weights(&db);

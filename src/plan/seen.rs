@@ -215,11 +215,13 @@ pub(crate) mod tests {
     fn a_palm_inside_the_points_intrudes_and_one_beside_them_does_not() {
         let robot = shipped_robot();
         let hand = crate::quality::autograsp::tests::hand_of(&robot);
-        let seen = SeenSurface::new(&hand, &cylinder_cloud(), SeenSurfaceOptions::default())
-            .unwrap();
+        let seen =
+            SeenSurface::new(&hand, &cylinder_cloud(), SeenSurfaceOptions::default()).unwrap();
         // Palm z (approach) along +x toward the cylinder's axis, palm at the axis.
         let inside = pose_from_params(&[0.6, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
-        let hit = seen.intrusion(&inside, 0.0).expect("the palm is in the cylinder");
+        let hit = seen
+            .intrusion(&inside, 0.0)
+            .expect("the palm is in the cylinder");
         assert!(hit.depth_m > 0.003 && hit.points > 0, "{hit:?}");
         assert!(hit.to_string().contains("mm"), "{hit}");
         // The same orientation 0.25 m back: clear, and so is its approach.
@@ -232,13 +234,16 @@ pub(crate) mod tests {
             ..SeenSurfaceOptions::default()
         };
         let only = SeenSurface::new(&hand, &cylinder_cloud(), at_grasp_only).unwrap();
-        let beyond = |x: f64| pose_from_params(&[x, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
+        let beyond =
+            |x: f64| pose_from_params(&[x, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
         let clear_x = (0..60)
             .map(|k| 0.6 + 0.005 * k as f64)
             .find(|&x| only.intrusion(&beyond(x), 0.0).is_none())
             .expect("the hand clears the cylinder somewhere beyond it");
         assert!(clear_x < 0.6 + 0.1, "{clear_x}");
-        let hit = seen.intrusion(&beyond(clear_x), 0.0).expect("the approach crosses it");
+        let hit = seen
+            .intrusion(&beyond(clear_x), 0.0)
+            .expect("the approach crosses it");
         assert!(hit.behind_grasp_m > 0.0, "{hit:?}");
         let empty = PointCloud::from_points(Vec::new());
         assert!(SeenSurface::new(&hand, &empty, SeenSurfaceOptions::default()).is_err());

@@ -22,8 +22,8 @@ use super::autograsp::{
 };
 use super::QualityParams;
 use crate::geometry::{pose_from_params, Pose, PoseParams};
-use nalgebra::{UnitQuaternion, Vector3};
 use crate::robot::hand::HandModel;
+use nalgebra::{UnitQuaternion, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -148,13 +148,7 @@ pub fn stability_range(
 ) -> Result<StabilityRange, GraspSimError> {
     options.validate()?;
     let stable = |p: &Pose| -> Result<bool, GraspSimError> {
-        let Some(pose) = retreat_until_clear(
-            hand,
-            object,
-            p,
-            spread_rad,
-            options.retreat_m,
-        ) else {
+        let Some(pose) = retreat_until_clear(hand, object, p, spread_rad, options.retreat_m) else {
             return Ok(false);
         };
         let e = evaluate_grasp(hand, object, &pose, spread_rad, grasp, quality, false)?;
