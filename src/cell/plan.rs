@@ -142,6 +142,8 @@ pub fn plan_trial(
         .map_err(|e| other(e.to_string()))?;
     let options = PlanOptions {
         weights: crate::plan::category::weights(db),
+        // The baseline's repair only when the baseline is the method.
+        repair_best_single: best_single,
         ..PlanOptions::new(kernel, config)
     };
     let outcome = plan(

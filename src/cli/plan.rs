@@ -634,8 +634,10 @@ fn sim_bench(
     use rand::{Rng, SeedableRng};
     let db = load_db(dir)?;
     let hand = HandModel::load(cell)?;
+    // As cell-plan plans a Laplace trial: the baseline is not repaired.
     let options = PlanOptions {
         weights: crate::plan::category::weights(&db),
+        repair_best_single: false,
         ..PlanOptions::new(Kernel::LAPLACE_DEFAULT, cell)
     };
     let (mut plain, mut total, mut refine_ms) = (Vec::new(), Vec::new(), Vec::new());

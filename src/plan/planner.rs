@@ -90,6 +90,10 @@ pub struct PlanOptions {
     /// paper's mode ([`super::mode::PlanMode`]): an unreachable grasp is returned
     /// marked unreachable.
     pub repair: bool,
+    /// Repair the best-single grasp too (with `repair`). A caller that wants only
+    /// the plan may turn this off to save the baseline's constrained search; the
+    /// baseline is then checked but not repaired.
+    pub repair_best_single: bool,
 }
 
 impl PlanOptions {
@@ -122,6 +126,7 @@ impl PlanOptions {
             constrained_starts: 2,
             feasibility_budget: 48,
             repair: true,
+            repair_best_single: true,
         }
     }
 }
@@ -860,7 +865,7 @@ fn best_single(
         None => problem.planned_at(pose, grasp.spread_rad, Ok(None)),
         Some(c) => match c.check(&pose, grasp.spread_rad, &[], &[], false) {
             Ok(f) => problem.planned_at(pose, grasp.spread_rad, Ok(Some(f))),
-            Err(why) if !problem.options.repair => {
+            Err(why) if !(problem.options.repair && problem.options.repair_best_single) => {
                 problem.planned_at(pose, grasp.spread_rad, Err(why))
             }
             Err(why) => {
