@@ -11,6 +11,7 @@
 //! [`train`] builds a database from a teach-in file ([`teach`]); [`suggest`]
 //! proposes teach-in grasps for procedural models.
 
+pub mod calibrate;
 pub mod suggest;
 pub mod teach;
 pub mod train;
@@ -299,6 +300,10 @@ pub struct DatabaseFile {
     pub models: Vec<ModelEntry>,
     /// Example grasps.
     pub grasps: Vec<GraspEntry>,
+    /// The weights of eq. 2 calibrated for this category, with the numbers they came
+    /// from (`cell train`); absent in databases trained before calibration.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weights: Option<calibrate::WeightCalibration>,
 }
 
 /// A loaded, validated category database.
@@ -412,6 +417,9 @@ impl DatabaseFile {
             })
         };
         let file = path.display().to_string();
+        if let Some(w) = &self.weights {
+            w.validate(&file)?;
+        }
         let known = tasks_of(self.category);
         if let Some(t) = self.tasks.iter().find(|t| !known.contains(&t.as_str())) {
             return invalid(file, "tasks", t.clone(), "not a task of the category");

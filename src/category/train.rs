@@ -296,9 +296,15 @@ pub fn train(
         stability: options.stability,
         models: entries,
         grasps: grasp_entries,
+        weights: None,
     };
-    let path = out.join(DATABASE_FILE);
-    let text = serde_json::to_string_pretty(&db).expect("the database serialises") + "\n";
-    write_atomically(&path, text.as_bytes()).map_err(io_err(&path))?;
+    write_database(out, &db)?;
     CategoryDb::load(out)
+}
+
+/// Writes `db` as `dir/category.json`, atomically (the meshes must be there already).
+pub fn write_database(dir: &Path, db: &DatabaseFile) -> Result<(), CategoryError> {
+    let path = dir.join(DATABASE_FILE);
+    let text = serde_json::to_string_pretty(db).expect("the database serialises") + "\n";
+    write_atomically(&path, text.as_bytes()).map_err(|source| CategoryError::Io { path, source })
 }

@@ -13,10 +13,16 @@ use crate::geometry::parse_numbers;
 use crate::geometry::{params_from_pose, Pose};
 use crate::plan::category::example_grasps;
 use crate::plan::input::{fits_input, read_fits_input, read_grasps, FitsInput, Unregistered};
+use crate::plan::objective::Objective;
+use crate::plan::refine::{refine_in_sim, Refined, SimModel, SimRefineOptions};
 use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
-use crate::plan::GraspPlan;
-use crate::plan::{plan, FitWeight, Kernel, PlanOptions, PlanOutcome, PlannedGrasp, Reachability};
+use crate::plan::{
+    plan, plan_with, FitWeight, Kernel, PaperProtocol, PlanMode, PlanOptions, PlanOutcome,
+    PlannedGrasp, Reachability, SeenSurface, SeenSurfaceOptions,
+};
+use crate::quality::autograsp::GraspObject;
 use crate::register::{register_all, ModelSet, RegisterParams, RegistrationStatus};
+use crate::robot::hand::HandModel;
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::Robot;
 use anyhow::Context;
@@ -154,12 +160,14 @@ pub struct PlanArgs {
     /// Fit weight.
     #[arg(long, value_enum, default_value_t = FitWeightName::EpsSigma)]
     pub fit_weight: FitWeightName,
-    /// lambda_psi of the stability weight psi(q) = 1 - exp(-lambda_psi q).
-    #[arg(long, default_value_t = 10.0)]
-    pub lambda_psi: f64,
-    /// lambda_eps of the fit weight (1/m^2).
-    #[arg(long, default_value_t = 1e4)]
-    pub lambda_eps_per_m2: f64,
+    /// lambda_psi of the stability weight psi(q) = 1 - exp(-lambda_psi q)
+    /// [default: the database's calibrated value, else 10].
+    #[arg(long)]
+    pub lambda_psi: Option<f64>,
+    /// lambda_eps of the fit weight (1/m^2) [default: the database's calibrated
+    /// value, else 1e4].
+    #[arg(long)]
+    pub lambda_eps_per_m2: Option<f64>,
     /// Skip reachability (the paper's simulation setting: only the table bound).
     #[arg(long, conflicts_with = "out")]
     pub no_reach: bool,
@@ -171,6 +179,18 @@ pub struct PlanArgs {
     /// default: the cell's home configuration.
     #[arg(long, value_name = "Q1,...,Q7", allow_hyphen_values = true)]
     pub from_joints: Option<String>,
+    /// The paper's settings: its kernel scale (s = b = 50 for `simulation`, 700 for
+    /// `robot`), its fixed weights, and no reachability repair for any method (an
+    /// unreachable grasp is reported as such). Without a value: `simulation`.
+    #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "simulation")]
+    pub paper: Option<PaperProtocol>,
+    /// With --cloud: do not treat the seen points as an obstacle of the open hand.
+    #[arg(long)]
+    pub no_seen_surface: bool,
+    /// Also refine the plan in the grasp simulator over every fitted model
+    /// (`laplace-sim`; needs --db for the meshes).
+    #[arg(long)]
+    pub refine_sim: bool,
     /// Run the starts one after another instead of in parallel.
     #[arg(long)]
     pub serial: bool,
@@ -207,8 +227,53 @@ struct PlanReport<'a> {
     /// Models left out because their registration failed.
     unregistered: Vec<Unregistered>,
     options: PlanOptions,
+    /// The paper's mode, when set.
+    paper: Option<PaperProtocol>,
+    /// Points of the seen surface (after thinning), when it was an obstacle.
+    seen_points: Option<usize>,
+    /// The plan refined in the simulator (--refine-sim).
+    laplace_sim: Option<Refined>,
     #[serde(flatten)]
     outcome: PlanOutcome,
+}
+
+/// `laplace-sim`: `start` refined in the grasp simulator over the models of `fits`.
+#[allow(clippy::too_many_arguments)]
+pub fn refine(
+    hand: &HandModel,
+    db: &CategoryDb,
+    fits: &[crate::plan::ModelFit],
+    grasps: &[crate::plan::ExampleGrasp],
+    task: &str,
+    options: &PlanOptions,
+    reach: Option<&dyn Reachability>,
+    seen: Option<&SeenSurface>,
+    start: &PlannedGrasp,
+) -> anyhow::Result<Refined> {
+    let objects = fits
+        .iter()
+        .map(|f| {
+            let i = db.model_index(&f.name).with_context(|| {
+                format!("fit {} names no model of {}", f.name, db.dir.display())
+            })?;
+            Ok(
+                GraspObject::new(&db.meshes[i], &db.dir.join(&db.file.models[i].mesh))?
+                    .with_table(db.file.table_height_m),
+            )
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let models = SimModel::of_fits(fits, &objects, &options.weights);
+    let objective = Objective::new(fits, grasps, task, &options.kernel, &options.weights)?;
+    Ok(refine_in_sim(
+        start,
+        hand,
+        &models,
+        reach,
+        seen,
+        options.pregrasp_offset_m,
+        &|p| objective.log_value_at(p),
+        &SimRefineOptions::default(),
+    )?)
 }
 
 /// Loads a category database for planning, refusing one without models.
@@ -342,34 +407,71 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
         (None, None) => unreachable!("clap requires --db or --grasps"),
     };
     let mut options = PlanOptions::new(args.kernel.kernel(), &cell);
-    options.weights.lambda_psi = args.lambda_psi;
-    options.weights.lambda_eps_per_m2 = args.lambda_eps_per_m2;
+    if let Some(db) = &db {
+        options.weights = crate::plan::category::weights(db);
+    }
+    if let Some(l) = args.lambda_psi {
+        options.weights.lambda_psi = l;
+    }
+    if let Some(l) = args.lambda_eps_per_m2 {
+        options.weights.lambda_eps_per_m2 = l;
+    }
     options.weights.fit = match args.fit_weight {
         FitWeightName::Eps => FitWeight::Eps,
         FitWeightName::EpsSigma => FitWeight::EpsSigma,
     };
     options.parallel = !args.serial;
+    if let Some(protocol) = args.paper {
+        PlanMode::Paper { protocol }.apply(&mut options);
+    }
     let robot = if args.no_reach {
         None
     } else {
         Some(Arc::new(Robot::load(&cell)?))
     };
-    let outcome = plan(
-        &fits,
-        &grasps,
-        &args.task,
-        &options,
-        robot.as_deref().map(|r| r as &dyn Reachability),
-    )
-    .with_context(|| format!("planning task {:?}", args.task))?;
+    let hand = HandModel::load(&cell)?;
+    let target = match (&args.cloud, args.no_seen_surface) {
+        (Some(path), false) => Some(read_cloud(path)?),
+        _ => None,
+    };
+    let seen = target
+        .as_ref()
+        .map(|c| {
+            SeenSurface::new(
+                &hand,
+                c,
+                SeenSurfaceOptions {
+                    approach_m: options.pregrasp_offset_m,
+                    ..SeenSurfaceOptions::default()
+                },
+            )
+        })
+        .transpose()?;
+    let reach = robot.as_deref().map(|r| r as &dyn Reachability);
+    let outcome = plan_with(&fits, &grasps, &args.task, &options, reach, seen.as_ref())
+        .with_context(|| format!("planning task {:?}", args.task))?;
+    let refined = match (args.refine_sim, &db) {
+        (false, _) => None,
+        (true, None) => anyhow::bail!("--refine-sim needs --db (the models' meshes)"),
+        (true, Some(db)) => Some(refine(
+            &hand,
+            db,
+            &fits,
+            &grasps,
+            &args.task,
+            &options,
+            reach,
+            seen.as_ref(),
+            &outcome.plan.grasp,
+        )?),
+    };
     if let (Some(out), Some(robot)) = (&args.out, &robot) {
-        write_plan(
-            &cell,
-            robot,
-            &outcome.plan,
-            args.from_joints.as_deref(),
-            out,
-        )?;
+        let (grasp, method) = match &refined {
+            Some(r) => (&r.grasp, "laplace-sim"),
+            None => (&outcome.plan.grasp, outcome.plan.kernel.name()),
+        };
+        let task = &outcome.plan.task;
+        write_plan(&cell, robot, grasp, task, method, args.from_joints.as_deref(), out)?;
     }
     let report = PlanReport {
         fits: fits_path,
@@ -378,6 +480,9 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
         registrations,
         unregistered: input.unregistered,
         options,
+        paper: args.paper,
+        seen_points: seen.as_ref().map(|s| s.len()),
+        laplace_sim: refined,
         outcome,
     };
     emit(args.json, &report, |r| {
@@ -431,18 +536,27 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
             r.outcome.best_single.model_name, r.outcome.best_single.grasp_index
         );
         text += &grasp_text("", &r.outcome.best_single.grasp);
+        if let Some(l) = &r.laplace_sim {
+            text += &format!(
+                "laplace-sim  mean simulated epsilon {:.4} -> {:.4} ({} evaluations)\n",
+                l.start_mean_epsilon, l.mean_epsilon, l.evaluations
+            );
+            text += &grasp_text("", &l.grasp);
+        }
         text
     })?;
     Ok(ExitCode::SUCCESS)
 }
 
-/// Writes `plan` for the executor ([`ExecutionRequest`]) to `out`, with joint
+/// Writes `grasp` (planned for `task` by `method`) for the executor ([`ExecutionRequest`]) to `out`, with joint
 /// solutions whose moves from `from_joints` (default: home) the executor accepts —
 /// the plan stage's own choice ([`executable_joints`]).
 fn write_plan(
     cell: &CellConfig,
     robot: &Arc<Robot>,
-    plan: &GraspPlan,
+    grasp: &PlannedGrasp,
+    task: &str,
+    method: &str,
     from_joints: Option<&str>,
     out: &Path,
 ) -> anyhow::Result<()> {
@@ -453,7 +567,7 @@ fn write_plan(
         None => HOME_JOINTS_RAD,
     };
     let check = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(cell, robot));
-    let mut grasp = plan.grasp.clone();
+    let mut grasp = grasp.clone();
     executable_joints(
         robot,
         &check,
@@ -462,7 +576,7 @@ fn write_plan(
         &current,
     )
     .map_err(|f| anyhow::anyhow!("--out {}: {}", out.display(), f.detail))?;
-    let request = ExecutionRequest::from_planned(&grasp, &plan.task, plan.kernel.name())?;
+    let request = ExecutionRequest::from_planned(&grasp, task, method)?;
     write_atomically(out, serde_json::to_string_pretty(&request)?.as_bytes())
         .with_context(|| format!("writing {}", out.display()))?;
     Ok(())
@@ -486,6 +600,16 @@ pub struct PlanBenchArgs {
     /// Seed of the first problem (problem r uses seed + r).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Problems of the Laplace / laplace-sim comparison on a category database
+    /// (its models as the fits, at seeded placements).
+    #[arg(long, default_value_t = 5)]
+    pub sim_repeats: usize,
+    /// The database of that comparison.
+    #[arg(long, default_value = "db/mug")]
+    pub sim_db: PathBuf,
+    /// Its task.
+    #[arg(long, default_value = "side")]
+    pub sim_task: String,
     /// Print JSON (always JSON; accepted for uniformity).
     #[arg(long)]
     pub json: bool,
@@ -531,6 +655,111 @@ struct PlanBench {
     far_median_cpu_ms: f64,
     far_reachable_rate: f64,
     far_unconstrained_unreachable_rate: f64,
+    /// Laplace beside laplace-sim on a category database, in the same run.
+    sim: SimBench,
+}
+
+/// Laplace and laplace-sim planned on the same problems.
+#[derive(Serialize)]
+struct SimBench {
+    db: PathBuf,
+    task: String,
+    repeats: usize,
+    /// Plain Laplace (with reachability), ms.
+    laplace_median_ms: f64,
+    /// laplace-sim: Laplace plus the refinement, ms.
+    laplace_sim_median_ms: f64,
+    /// The refinement alone, ms.
+    refine_median_ms: f64,
+    /// Fit-weighted mean simulated epsilon before and after the refinement.
+    median_start_mean_epsilon: f64,
+    median_mean_epsilon: f64,
+    median_refine_evaluations: f64,
+}
+
+/// Laplace and laplace-sim on `repeats` problems of the database at `dir`: every
+/// model as a fit at a seeded placement near (0.6, 0), with a seeded fitting error.
+fn sim_bench(
+    cell: &CellConfig,
+    robot: &Robot,
+    dir: &Path,
+    task: &str,
+    repeats: usize,
+    seed: u64,
+) -> anyhow::Result<SimBench> {
+    use rand::{Rng, SeedableRng};
+    let db = load_db(dir)?;
+    let hand = HandModel::load(cell)?;
+    // As cell-plan plans a Laplace trial: the baseline is not repaired.
+    let options = PlanOptions {
+        weights: crate::plan::category::weights(&db),
+        repair_best_single: false,
+        ..PlanOptions::new(Kernel::LAPLACE_DEFAULT, cell)
+    };
+    let (mut plain, mut total, mut refine_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut before, mut after, mut evals) = (Vec::new(), Vec::new(), Vec::new());
+    for r in 0..repeats {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + r as u64);
+        let fits: Vec<crate::plan::ModelFit> = db
+            .file
+            .models
+            .iter()
+            .map(|m| crate::plan::ModelFit {
+                name: m.name.clone(),
+                base_from_model: crate::geometry::pose_from_params(&[
+                    0.6 + rng.gen_range(-0.005..0.005),
+                    rng.gen_range(-0.005..0.005),
+                    0.0,
+                    0.0,
+                    0.0,
+                    rng.gen_range(-0.3..0.3),
+                ]),
+                eps_m2: rng.gen_range(5e-5..3e-4),
+                sigma_m2: rng.gen_range(2e-5..1e-4),
+            })
+            .collect();
+        let grasps = example_grasps(&db, &fits, task)?;
+        let (t, out) = time_ms(|| {
+            plan(
+                &fits,
+                &grasps,
+                task,
+                &options,
+                Some(robot as &dyn Reachability),
+            )
+            .expect("the database's problems are valid")
+        });
+        plain.push(t);
+        let start = Instant::now();
+        let refined = refine(
+            &hand,
+            &db,
+            &fits,
+            &grasps,
+            task,
+            &options,
+            Some(robot as &dyn Reachability),
+            None,
+            &out.plan.grasp,
+        )?;
+        let rt = start.elapsed().as_secs_f64() * 1e3;
+        refine_ms.push(rt);
+        total.push(t + rt);
+        before.push(refined.start_mean_epsilon);
+        after.push(refined.mean_epsilon);
+        evals.push(refined.evaluations as f64);
+    }
+    Ok(SimBench {
+        db: dir.to_path_buf(),
+        task: task.to_string(),
+        repeats,
+        laplace_median_ms: median(&mut plain),
+        laplace_sim_median_ms: median(&mut total),
+        refine_median_ms: median(&mut refine_ms),
+        median_start_mean_epsilon: median(&mut before),
+        median_mean_epsilon: median(&mut after),
+        median_refine_evaluations: median(&mut evals),
+    })
 }
 
 /// CPU time of the calling thread (ms): a serial run's cost whatever else the machine
@@ -647,7 +876,16 @@ pub fn bench(config: &Path, args: PlanBenchArgs) -> anyhow::Result<ExitCode> {
         far_reachable.push(out.plan.grasp.reachable);
         far_unc.push(out.plan.unconstrained_optimum.is_some());
     }
+    let sim = sim_bench(
+        &cell,
+        &robot,
+        &args.sim_db,
+        &args.sim_task,
+        args.sim_repeats.max(1),
+        args.seed,
+    )?;
     let out = PlanBench {
+        sim,
         models: args.models,
         grasps_per_model: args.grasps_per_model,
         starts: args.models * args.grasps_per_model,

@@ -1,14 +1,20 @@
 //! `cell train`: build a category database from a teach-in file, and
 //! `cell train suggest-grasps`: propose a teach-in file for procedural models.
 
+use crate::category::calibrate::{calibrate, LooSource, WeightCalibration};
 use crate::category::suggest::{suggest_teach_file, SuggestModel, SuggestOptions};
 use crate::category::teach::TeachFile;
-use crate::category::train::{train, TrainOptions};
+use crate::category::train::{train, write_database, TrainOptions};
 use crate::category::CategoryDb;
 use crate::config::CellConfig;
+use crate::eval::experiment::Registrar;
+use crate::eval::registration::CategoryRegistrar;
+use crate::eval::view::{partial_view, PlacementRegion};
 use crate::mesh::procedural::{Category, Params};
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
+use crate::sim::camera::DepthCamera;
+use crate::sim::scene::TableBox;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -41,6 +47,14 @@ pub struct TrainArgs {
     /// Write the sampled clouds under clouds/ (else they are sampled when loaded).
     #[arg(long)]
     pub write_clouds: bool,
+    /// Seed of the weight calibration's leave-one-out views (placement, camera noise,
+    /// registration).
+    #[arg(long, default_value_t = 1)]
+    pub calibration_seed: u64,
+    /// Do not calibrate the weights (the database then has none, and planners use
+    /// the fixed defaults).
+    #[arg(long)]
+    pub no_calibrate: bool,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -100,6 +114,8 @@ struct TrainReport {
     out: PathBuf,
     models: usize,
     grasps: Vec<GraspLine>,
+    /// The calibrated weights, when calibrated.
+    weights: Option<WeightCalibration>,
 }
 
 #[derive(Debug, Serialize)]
@@ -123,7 +139,8 @@ fn progress_bar(message: &str) -> ProgressBar {
 
 /// Runs `cell train` (or its subcommand).
 pub fn run(config: &Path, args: TrainArgs) -> anyhow::Result<ExitCode> {
-    let hand = HandModel::load(&CellConfig::load(config)?)?;
+    let cell = CellConfig::load(config)?;
+    let hand = HandModel::load(&cell)?;
     if let Some(TrainCommand::SuggestGrasps(s)) = args.command {
         return suggest(&hand, s);
     }
@@ -140,9 +157,16 @@ pub fn run(config: &Path, args: TrainArgs) -> anyhow::Result<ExitCode> {
         ..TrainOptions::default()
     };
     let bar = progress_bar(&format!("training {category}: stability ranges"));
-    let db = train(&hand, category, &teach, &models, &out, &options, Some(&bar))
+    let mut db = train(&hand, category, &teach, &models, &out, &options, Some(&bar))
         .with_context(|| format!("training {category} from {}", grasps.display()))?;
     bar.finish_and_clear();
+    if !args.no_calibrate {
+        let weights = calibrate_weights(&cell, &db, args.calibration_seed)
+            .with_context(|| format!("calibrating the weights of {}", out.display()))?;
+        db.file.weights = Some(weights);
+        write_database(&out, &db.file)?;
+        db = CategoryDb::load(&out)?;
+    }
     let report = report_of(&db);
     super::emit(args.json, &report, |r: &TrainReport| {
         let mut text = format!(
@@ -167,6 +191,24 @@ pub fn run(config: &Path, args: TrainArgs) -> anyhow::Result<ExitCode> {
                 d[5].to_degrees()
             );
         }
+        if let Some(w) = &r.weights {
+            text += &format!(
+                "weights: lambda_psi {:.3} (median q {:.4}; psi {:.2}..{:.2} over q {:.4}..{:.4})\n\
+                 \x20        lambda_eps {:.4e} /m^2 (median eps+sigma {:.3} mm^2 over {} leave-one-out fits; \
+                 phi {:.2}..{:.2})\n",
+                w.lambda_psi,
+                w.q.median,
+                w.psi_range[0],
+                w.psi_range[1],
+                w.q.min,
+                w.q.max,
+                w.lambda_eps_per_m2,
+                w.fit_score_m2.median * 1e6,
+                w.fit_score_m2.count,
+                w.phi_range[1],
+                w.phi_range[0]
+            );
+        }
         text
     })?;
     Ok(ExitCode::SUCCESS)
@@ -188,7 +230,62 @@ fn report_of(db: &CategoryDb) -> TrainReport {
                 delta: g.delta,
             })
             .collect(),
+        weights: db.file.weights.clone(),
     }
+}
+
+/// The weights of eq. 2 calibrated for `db` ([`crate::category::calibrate`]): each
+/// model placed on the table (seeded), seen by the cell's sim camera, and the other
+/// models registered to that partial view, as in `cell eval loo --views partial`.
+fn calibrate_weights(
+    cell: &CellConfig,
+    db: &CategoryDb,
+    seed: u64,
+) -> anyhow::Result<WeightCalibration> {
+    use rayon::prelude::*;
+    let camera = DepthCamera::from_config(&cell.camera, cell.base_from_camera());
+    let table = TableBox::from(&cell.table);
+    let region = PlacementRegion::around([0.6, 0.0], cell.table.height_m);
+    let eye = cell.base_from_camera().translation.vector;
+    let registrar = CategoryRegistrar::new(db, Some([eye.x, eye.y, eye.z]))?;
+    let models = db.file.models.len();
+    anyhow::ensure!(
+        models >= 2,
+        "{}: leave-one-out needs at least 2 models (use --no-calibrate)",
+        db.dir.display()
+    );
+    let per_view: Vec<anyhow::Result<(Vec<f64>, usize)>> = (0..models)
+        .into_par_iter()
+        .map(|i| {
+            let name = &db.file.models[i].name;
+            let mesh = &db.meshes[i];
+            let view_seed = seed.wrapping_add(i as u64);
+            let pose = region.place(mesh, view_seed);
+            let view = partial_view(name, mesh, &pose, &camera, table, view_seed)?;
+            Ok(match registrar.fits(&view, Some(name), view_seed) {
+                Ok(fits) => {
+                    let failed = models - 1 - fits.len();
+                    (fits.iter().map(|f| f.eps_m2 + f.sigma_m2).collect(), failed)
+                }
+                Err(_) => (Vec::new(), models - 1),
+            })
+        })
+        .collect();
+    let mut scores = Vec::new();
+    let mut failed = 0;
+    for r in per_view {
+        let (s, f) = r?;
+        scores.extend(s);
+        failed += f;
+    }
+    let q: Vec<f64> = db.file.grasps.iter().map(|g| g.q).collect();
+    let source = LooSource {
+        view: "partial".into(),
+        seed,
+        views: models,
+        failed,
+    };
+    Ok(calibrate(&q, &scores, source)?)
 }
 
 fn suggest(hand: &HandModel, args: SuggestArgs) -> anyhow::Result<ExitCode> {

@@ -4,8 +4,22 @@
 //! model's task-labelled grasps. The planner wants, for one task, the grasps whose
 //! model has a fit, indexed by that fit.
 
-use super::{ExampleGrasp, ModelFit, PlanError};
+use super::{ExampleGrasp, FitWeight, ModelFit, PlanError, Weights};
 use crate::category::CategoryDb;
+
+/// The weights of eq. 2 for `db`: its calibrated `lambda_psi` and `lambda_eps` with
+/// the fit weight (4b) when `cell train` stored them
+/// ([`crate::category::calibrate`]), else [`Weights::default`].
+pub fn weights(db: &CategoryDb) -> Weights {
+    match &db.file.weights {
+        Some(w) => Weights {
+            lambda_psi: w.lambda_psi,
+            lambda_eps_per_m2: w.lambda_eps_per_m2,
+            fit: FitWeight::EpsSigma,
+        },
+        None => Weights::default(),
+    }
+}
 
 /// The example grasps of `task` in `db`, each pointing at its model's entry in `fits`.
 ///
@@ -99,6 +113,29 @@ mod tests {
             assert_eq!(entry.q, g.q);
             assert_eq!(entry.sigma, g.sigma);
         }
+    }
+
+    #[test]
+    fn the_shipped_databases_carry_calibrated_weights_and_they_are_used() {
+        for category in ["mug", "bottle", "hammer", "knife"] {
+            let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("db")
+                .join(category);
+            let db = CategoryDb::load(&dir).unwrap();
+            let stored = db.file.weights.as_ref().expect("calibrated by cell train");
+            let w = weights(&db);
+            assert_eq!(w.lambda_psi, stored.lambda_psi, "{category}");
+            assert_eq!(w.lambda_eps_per_m2, stored.lambda_eps_per_m2, "{category}");
+            assert_ne!(w, Weights::default(), "{category}");
+            // The numbers they came from: the median fit weighs 1/e, the median q 1/2.
+            assert!((w.lambda_eps_per_m2 * stored.fit_score_m2.median - 1.0).abs() < 1e-9);
+            assert!((w.lambda_psi * stored.q.median - std::f64::consts::LN_2).abs() < 1e-9);
+            assert!(stored.fit_score_m2.count > 0 && stored.loo.view == "partial");
+        }
+        // Without a calibration, the defaults.
+        let mut db = mug_db();
+        db.file.weights = None;
+        assert_eq!(weights(&db), Weights::default());
     }
 
     #[test]

@@ -1,5 +1,7 @@
 //! Task-compatibility densities `P(X; theta_ik)` of eq. 5 over the pose difference
-//! `d = param(T_i^-1 X) - theta_ik` (m, m, m, rad, rad, rad; angles wrapped).
+//! `d` between `T_i^-1 X` and `theta_ik`: the translation difference (m) and the
+//! rotation vector `log(R_theta^T R_X)` about the grasp's own axes (rad), see
+//! [`super::chart`].
 //!
 //! Translation and rotation have separate scales: the regulariser of Gaussian-R is
 //! `s_translation_m2` (m^2) on x y z and `s_rotation_rad2` (rad^2) on the angles; the

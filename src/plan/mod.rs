@@ -4,6 +4,8 @@
 //! grasp and its pre-grasp.
 //!
 //! - [`weights`]: `psi(q)` and `phi(eps)`, `phi(eps, sigma)`.
+//! - [`chart`]: the pose difference `d` on the rotation group (rotation vectors, no
+//!   gimbal lock) and the local charts the optimiser searches in.
 //! - [`kernel`]: Gaussian, Gaussian-R and Laplace densities with separate translation
 //!   and rotation scales (the paper's mixed mm/rad scalar by conversion).
 //! - [`objective`]: eq. 2 over a task's grasps, with normalising constants, in log space.
@@ -18,18 +20,24 @@
 //! [`planner::plan`] once per held-out model, task and kernel.
 
 pub mod category;
+pub mod chart;
 pub mod input;
 pub mod kernel;
+pub mod mode;
 pub mod nelder_mead;
 pub mod objective;
 pub mod planner;
 pub mod reach;
+pub mod refine;
+pub mod seen;
 pub mod synthetic;
 pub mod weights;
 
 pub use kernel::Kernel;
-pub use planner::{plan, BestSingle, GraspPlan, PlanOptions, PlanOutcome, PlannedGrasp};
+pub use mode::{PaperProtocol, PlanMode};
+pub use planner::{plan, plan_with, BestSingle, GraspPlan, PlanOptions, PlanOutcome, PlannedGrasp};
 pub use reach::Reachability;
+pub use seen::{SeenSurface, SeenSurfaceOptions};
 pub use weights::{FitWeight, Weights};
 
 use crate::geometry::{Pose, PoseParams};
@@ -56,14 +64,16 @@ pub struct ExampleGrasp {
     /// The task (`top`, `side`, `handle`, `use`, ...).
     pub task: String,
     /// `theta_ik`: the palm pose in the model frame, `[x, y, z, ax, ay, az]` (m, rad;
-    /// URDF rpy). Any representative of the rotation will do: it is canonicalised.
+    /// URDF rpy). Any representative of the rotation will do: only the rotation it
+    /// stands for is used.
     pub model_from_palm: PoseParams,
     /// Hand spread of the grasp (rad).
     pub spread_rad: f64,
     /// Grasp quality `q_ik >= 0` (Ferrari–Canny epsilon; 0 = not force closure).
     pub q: f64,
-    /// Per-DOF standard deviations `Delta_d / 3` (m, m, m, rad, rad, rad);
-    /// `Sigma_ik = diag(sigma^2)`.
+    /// Per-DOF standard deviations `Delta_d / 3` (m, m, m, rad, rad, rad): along the
+    /// model frame's axes, and about the grasp's own palm axes (the components of the
+    /// rotation vector of [`chart`]); `Sigma_ik = diag(sigma^2)`.
     pub sigma: [f64; 6],
 }
 

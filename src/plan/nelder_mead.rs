@@ -85,8 +85,31 @@ fn ulp(x: f64) -> f64 {
 /// Returns the best vertex, its value, the iterations and the evaluations. An empty
 /// `x0` returns at once with `f(x0)`.
 pub fn nelder_mead(
+    f: impl FnMut(&[f64]) -> f64,
+    x0: &[f64],
+    options: &NelderMeadOptions,
+) -> NelderMeadResult {
+    minimise(f, x0, None, options)
+}
+
+/// [`nelder_mead`] with a given initial simplex: `x0` and, for each coordinate `j`,
+/// `x0` with `steps[j]` added to component `j` (for coordinates centred on the
+/// start, where `fminsearch`'s 5 % rule would give a vanishing step). `steps` must
+/// have the length of `x0`.
+pub fn nelder_mead_with_steps(
+    f: impl FnMut(&[f64]) -> f64,
+    x0: &[f64],
+    steps: &[f64],
+    options: &NelderMeadOptions,
+) -> NelderMeadResult {
+    assert_eq!(steps.len(), x0.len(), "one initial step per coordinate");
+    minimise(f, x0, Some(steps), options)
+}
+
+fn minimise(
     mut f: impl FnMut(&[f64]) -> f64,
     x0: &[f64],
+    steps: Option<&[f64]>,
     options: &NelderMeadOptions,
 ) -> NelderMeadResult {
     let n = x0.len();
@@ -119,7 +142,9 @@ pub fn nelder_mead(
     for j in 0..n {
         let y = &mut vertices[(j + 1) * n..(j + 2) * n];
         y.copy_from_slice(x0);
-        y[j] = if y[j] != 0.0 {
+        y[j] = if let Some(steps) = steps {
+            y[j] + steps[j]
+        } else if y[j] != 0.0 {
             (1.0 + USUAL_DELTA) * y[j]
         } else {
             ZERO_TERM_DELTA
@@ -308,6 +333,25 @@ mod tests {
             &NelderMeadOptions::default(),
         );
         assert_eq!(&seen[..3], &[0.0, 0.0, 0.00025]);
+    }
+
+    #[test]
+    fn given_steps_make_the_initial_simplex() {
+        let mut seen = Vec::new();
+        let r = nelder_mead_with_steps(
+            |x| {
+                seen.push([x[0], x[1]]);
+                (x[0] - 0.3).powi(2) + (x[1] + 0.2).powi(2)
+            },
+            &[0.0, 0.0],
+            &[0.1, -0.05],
+            &NelderMeadOptions::default(),
+        );
+        assert_eq!(&seen[..3], &[[0.0, 0.0], [0.1, 0.0], [0.0, -0.05]]);
+        assert!(
+            (r.x[0] - 0.3).abs() < 1e-2 && (r.x[1] + 0.2).abs() < 1e-2,
+            "{r:?}"
+        );
     }
 
     #[test]

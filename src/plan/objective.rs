@@ -1,16 +1,20 @@
 //! The objective of eq. 2 over the example grasps of one task:
 //!
-//! `f(X) = sum_{i,k in task} P(param(T_i^-1 X) - theta_ik) psi(q_ik) phi_i`
+//! `f(X) = sum_{i,k in task} P(d(T_i^-1 X, theta_ik)) psi(q_ik) phi_i`
 //!
-//! reported **with** the normalising constants of the densities (units: 1/(m^3 rad^3)),
-//! so that runs compare. It is evaluated in log space (log-sum-exp over the grasps)
-//! so that far from every grasp it stays finite instead of underflowing to 0; the
-//! optimiser minimises `-ln f`, which has the same argmax as `f`.
+//! where `d` is the translation difference and the rotation vector
+//! `log(R_theta^T R_X)` in the example grasp's frame ([`super::chart`]): a distance on
+//! the rotation group, without the gimbal lock of rpy differences. Reported **with**
+//! the normalising constants of the densities (units: 1/(m^3 rad^3)), so that runs
+//! compare. It is evaluated in log space (log-sum-exp over the grasps) so that far
+//! from every grasp it stays finite instead of underflowing to 0; the optimiser
+//! minimises `-ln f`, which has the same argmax as `f`.
 
+use super::chart::{difference, matrix_of, mul, rotation_from_rpy, Mat3};
 use super::kernel::{Kernel, KernelTerm};
 use super::weights::Weights;
 use super::{ExampleGrasp, ModelFit, PlanError};
-use crate::geometry::{param_difference, params_from_pose, pose_from_params, Pose, PoseParams};
+use crate::geometry::{params_from_pose, pose_from_params, Pose, PoseParams};
 
 /// One example grasp of the task, ready to evaluate.
 #[derive(Debug, Clone)]
@@ -21,8 +25,9 @@ struct Term {
     model: usize,
     /// Index into [`Objective::frames`].
     frame: usize,
-    /// `theta_ik`, canonical (angles as `params_from_pose` gives them).
-    theta: PoseParams,
+    /// `theta_ik`: its rotation (rows) and translation in the model frame.
+    theta_rotation: Mat3,
+    theta_translation: [f64; 3],
     kernel: KernelTerm,
     /// `ln psi(q_ik) + ln phi_i` (may be `-inf`: the grasp does not count).
     log_weight: f64,
@@ -32,40 +37,8 @@ struct Term {
 /// Plain arrays: the hot loop stays fast without inlining nalgebra's generics.
 #[derive(Debug, Clone)]
 struct Frame {
-    rotation: [[f64; 3]; 3],
+    rotation: Mat3,
     translation: [f64; 3],
-}
-
-/// `R = Rz(az) Ry(ay) Rx(ax)` as rows (the URDF rpy convention of `pose_from_params`).
-#[inline]
-fn rotation_from_rpy(ax: f64, ay: f64, az: f64) -> [[f64; 3]; 3] {
-    let (sr, cr) = ax.sin_cos();
-    let (sp, cp) = ay.sin_cos();
-    let (sy, cy) = az.sin_cos();
-    [
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ]
-}
-
-/// The rpy angles of a rotation matrix, with the same branches as nalgebra's
-/// `Rotation3::euler_angles` (so as `params_from_pose`).
-#[inline]
-fn rpy_from_rotation(m: &[[f64; 3]; 3]) -> (f64, f64, f64) {
-    if m[2][0].abs() < 1.0 {
-        let pitch = -m[2][0].asin();
-        let c = pitch.cos();
-        (
-            (m[2][1] / c).atan2(m[2][2] / c),
-            pitch,
-            (m[1][0] / c).atan2(m[0][0] / c),
-        )
-    } else if m[2][0] <= -1.0 {
-        (m[0][1].atan2(m[0][2]), std::f64::consts::FRAC_PI_2, 0.0)
-    } else {
-        (-m[0][1].atan2(-m[0][2]), -std::f64::consts::FRAC_PI_2, 0.0)
-    }
 }
 
 /// The objective of eq. 2 for one task, with everything that does not depend on the
@@ -229,11 +202,14 @@ impl Objective {
                     translation: [t.x, t.y, t.z],
                 });
             }
+            let theta = pose_from_params(&grasp.model_from_palm);
+            let tt = theta.translation.vector;
             terms.push(Term {
                 grasp: g,
                 model: grasp.model,
                 frame: frame_of_model[grasp.model],
-                theta: params_from_pose(&pose_from_params(&grasp.model_from_palm)),
+                theta_rotation: matrix_of(&theta),
+                theta_translation: [tt.x, tt.y, tt.z],
                 kernel: kernel.term(&grasp.sigma),
                 log_weight: weights.log_psi(grasp.q) + weights.log_phi(fit.eps_m2, fit.sigma_m2),
             });
@@ -256,55 +232,54 @@ impl Objective {
     }
 
     /// Calls `visit(term, ln term)` for every grasp of the task at the candidate palm
-    /// pose `x` (world parameters).
+    /// pose of world rotation `rotation` and position `x`.
     #[inline]
-    fn for_each_term(&self, x: &PoseParams, mut visit: impl FnMut(&Term, f64)) {
-        let rotation = rotation_from_rpy(x[3], x[4], x[5]);
+    fn for_each_term(&self, rotation: &Mat3, x: &[f64; 3], mut visit: impl FnMut(&Term, f64)) {
         let mut frame = usize::MAX;
-        let mut local = [0.0; 6];
+        let mut r = [[0.0; 3]; 3];
+        let mut t = [0.0; 3];
         for term in &self.terms {
             if term.frame != frame {
                 frame = term.frame;
                 let f = &self.frames[frame];
                 let a = &f.rotation;
                 // r = a * rotation, t = a * x + translation.
-                let r: [[f64; 3]; 3] = std::array::from_fn(|i| {
-                    std::array::from_fn(|j| {
-                        a[i][0] * rotation[0][j]
-                            + a[i][1] * rotation[1][j]
-                            + a[i][2] * rotation[2][j]
-                    })
-                });
-                let t: [f64; 3] = std::array::from_fn(|i| {
+                r = mul(a, rotation);
+                t = std::array::from_fn(|i| {
                     a[i][0] * x[0] + a[i][1] * x[1] + a[i][2] * x[2] + f.translation[i]
                 });
-                let (ax, ay, az) = rpy_from_rotation(&r);
-                local = [t[0], t[1], t[2], ax, ay, az];
             }
             if term.log_weight == f64::NEG_INFINITY {
                 continue;
             }
-            let d = param_difference(&local, &term.theta);
+            let d = difference(&r, &t, &term.theta_rotation, &term.theta_translation);
             visit(term, term.log_weight + term.kernel.log_density(&d));
         }
     }
 
     /// `ln f(X)` for the palm pose of world parameters `x`.
     pub fn log_value(&self, x: &PoseParams) -> f64 {
-        let mut lse = LogSumExp::default();
-        self.for_each_term(x, |_, t| lse.add(t));
-        lse.value()
+        let rotation = rotation_from_rpy(x[3], x[4], x[5]);
+        self.log_value_rt(&rotation, &[x[0], x[1], x[2]])
     }
 
     /// `ln f(X)` for a palm pose.
     pub fn log_value_at(&self, pose: &Pose) -> f64 {
-        self.log_value(&params_from_pose(pose))
+        let t = pose.translation.vector;
+        self.log_value_rt(&matrix_of(pose), &[t.x, t.y, t.z])
     }
 
-    /// The grasp with the largest term at `x` (the first among equals).
-    pub fn dominant_grasp(&self, x: &PoseParams) -> usize {
+    fn log_value_rt(&self, rotation: &Mat3, x: &[f64; 3]) -> f64 {
+        let mut lse = LogSumExp::default();
+        self.for_each_term(rotation, x, |_, t| lse.add(t));
+        lse.value()
+    }
+
+    /// The grasp with the largest term at the palm pose (the first among equals).
+    pub fn dominant_grasp(&self, pose: &Pose) -> usize {
+        let t = pose.translation.vector;
         let mut best = (self.terms[0].grasp, f64::NEG_INFINITY);
-        self.for_each_term(x, |term, t| {
+        self.for_each_term(&matrix_of(pose), &[t.x, t.y, t.z], |term, t| {
             if t > best.1 {
                 best = (term.grasp, t);
             }
@@ -312,8 +287,9 @@ impl Objective {
         best.0
     }
 
-    /// The objective at `x` split by model and grasp.
-    pub fn breakdown(&self, x: &PoseParams) -> Breakdown {
+    /// The objective at the palm pose split by model and grasp.
+    pub fn breakdown(&self, pose: &Pose) -> Breakdown {
+        let x = pose.translation.vector;
         let mut total = LogSumExp::default();
         let mut per_model = vec![LogSumExp::default(); self.models];
         let mut per_grasp: Vec<(usize, f64)> = self
@@ -322,7 +298,7 @@ impl Objective {
             .map(|t| (t.grasp, f64::NEG_INFINITY))
             .collect();
         let mut slot = 0;
-        self.for_each_term(x, |term, t| {
+        self.for_each_term(&matrix_of(pose), &[x.x, x.y, x.z], |term, t| {
             total.add(t);
             per_model[term.model].add(t);
             while per_grasp[slot].0 != term.grasp {
@@ -383,7 +359,7 @@ mod tests {
     use crate::plan::test_support::{grasp, two_model_database};
     use nalgebra::{Matrix6, Vector6};
     use rand::{Rng, SeedableRng};
-    use std::f64::consts::PI;
+    use std::f64::consts::{FRAC_PI_2, PI};
 
     /// Eq. 2 written out independently: full covariance matrices, nalgebra's own
     /// parametrisation, plain sums in linear space.
@@ -399,21 +375,13 @@ mod tests {
         let mut sum = 0.0;
         for g in grasps.iter().filter(|g| g.task == task) {
             let fit = &fits[g.model];
-            let local = params_from_pose(&(fit.base_from_model.inverse() * pose));
-            let theta = params_from_pose(&pose_from_params(&g.model_from_palm));
-            let mut d = [0.0; 6];
-            for i in 0..6 {
-                d[i] = local[i] - theta[i];
-                if i >= 3 {
-                    // Wrap by hand: the nearest representative of d modulo 2 pi.
-                    while d[i] > PI {
-                        d[i] -= 2.0 * PI;
-                    }
-                    while d[i] < -PI {
-                        d[i] += 2.0 * PI;
-                    }
-                }
-            }
+            // d written out with nalgebra: translation in the model frame, the
+            // rotation vector of theta^-1 * local (the shortest representative).
+            let local = fit.base_from_model.inverse() * pose;
+            let theta = pose_from_params(&g.model_from_palm);
+            let dt = local.translation.vector - theta.translation.vector;
+            let dr = (theta.rotation.inverse() * local.rotation).scaled_axis();
+            let d = [dt.x, dt.y, dt.z, dr.x, dr.y, dr.z];
             let density = match *kernel {
                 Kernel::Gaussian | Kernel::GaussianR { .. } => {
                     let (st, sr) = match *kernel {
@@ -492,7 +460,7 @@ mod tests {
                 } else {
                     assert!(got < -600.0, "{got}");
                 }
-                let b = objective.breakdown(&x);
+                let b = objective.breakdown(&pose_from_params(&x));
                 assert!((b.log_value - got).abs() < 1e-12);
                 let sum: f64 = b.per_model_log.iter().map(|l| l.exp()).sum();
                 assert!((sum - got.exp()).abs() <= 1e-12 * got.exp().max(1e-300));
@@ -500,25 +468,72 @@ mod tests {
         }
     }
 
+    /// Issue 20: two grasps 5 deg apart at pitch -89 deg (stored as rpy, like the
+    /// database's side grasps) are 5 deg apart, and with equal fits, q and Sigma their
+    /// terms of eq. 2 half way between agree (within a factor of 2) for every kernel.
     #[test]
-    fn plain_rotations_match_nalgebra() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        for i in 0..1000 {
-            let mut p: [f64; 3] = std::array::from_fn(|_| rng.gen_range(-PI..PI));
-            if i % 10 == 0 {
-                p[1] = if i % 20 == 0 { PI / 2.0 } else { -PI / 2.0 }; // gimbal lock
+    fn grasps_five_degrees_apart_at_pitch_minus_89_share_the_objective() {
+        use crate::plan::chart::{pose_difference, rotated_about_own_axes};
+        let a_params = [0.0, 0.08, 0.06, -FRAC_PI_2, -89f64.to_radians(), -FRAC_PI_2];
+        let a = pose_from_params(&a_params);
+        let model = pose_from_params(&[0.6, 0.0, 0.0, 0.0, 0.0, 0.3]);
+        let fits: Vec<ModelFit> = ["mug_a", "mug_b"]
+            .iter()
+            .map(|name| ModelFit {
+                name: name.to_string(),
+                base_from_model: model,
+                eps_m2: 1e-5,
+                sigma_m2: 2e-6,
+            })
+            .collect();
+        let five = 5f64.to_radians();
+        let mut largest_rpy_difference: f64 = 0.0;
+        for axis in [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.6, -0.8],
+        ] {
+            let w = axis.map(|v| v * five);
+            let b_params = params_from_pose(&rotated_about_own_axes(&a, w));
+            let b = pose_from_params(&b_params);
+            for (d, want) in (3..6).zip(&a_params[3..]) {
+                let e = crate::geometry::wrap_angle(b_params[d] - want).abs();
+                largest_rpy_difference = largest_rpy_difference.max(e);
             }
-            let m = rotation_from_rpy(p[0], p[1], p[2]);
-            let r = nalgebra::Rotation3::from_euler_angles(p[0], p[1], p[2]);
-            for a in 0..3 {
-                for b in 0..3 {
-                    assert!((m[a][b] - r[(a, b)]).abs() < 1e-15);
-                }
+            let d = pose_difference(&b, &a);
+            let angle = (d[3] * d[3] + d[4] * d[4] + d[5] * d[5]).sqrt();
+            assert!(
+                (angle - five).abs() < 0.1f64.to_radians(),
+                "{axis:?}: {angle}"
+            );
+            let grasps = vec![
+                grasp(0, "side", a_params, 0.2),
+                grasp(1, "side", b_params, 0.2),
+            ];
+            let mut grasps = grasps;
+            grasps[1].spread_rad = grasps[0].spread_rad;
+            let half = model * rotated_about_own_axes(&a, w.map(|v| 0.5 * v));
+            for kernel in [
+                Kernel::Gaussian,
+                Kernel::GAUSSIAN_R_DEFAULT,
+                Kernel::LAPLACE_DEFAULT,
+            ] {
+                let objective =
+                    Objective::new(&fits, &grasps, "side", &kernel, &Weights::default()).unwrap();
+                let b = objective.breakdown(&half);
+                let ratio = (b.per_grasp_log[0].1 - b.per_grasp_log[1].1).exp();
+                assert!(
+                    (0.5..=2.0).contains(&ratio),
+                    "{} {axis:?}: terms {:?}",
+                    kernel.name(),
+                    b.per_grasp_log
+                );
             }
-            let (x, y, z) = rpy_from_rotation(&m);
-            let (rx, ry, rz) = r.euler_angles();
-            assert!((x - rx).abs() < 1e-12 && (y - ry).abs() < 1e-12 && (z - rz).abs() < 1e-12);
         }
+        // The case is the gimbal lock: some of these pairs differ by ~pi in roll and yaw.
+        assert!(largest_rpy_difference > 2.5, "{largest_rpy_difference}");
     }
 
     #[test]
@@ -543,7 +558,7 @@ mod tests {
         let w = Weights::default();
         let x = [0.62, 0.01, 0.1, 0.0, 1.2, 0.3];
         let before = Objective::new(&fits, &grasps, "side", &kernel, &w).unwrap();
-        let gone = before.breakdown(&x).per_grasp_log[0];
+        let gone = before.breakdown(&pose_from_params(&x)).per_grasp_log[0];
         grasps[gone.0].q = 0.0;
         let after = Objective::new(&fits, &grasps, "side", &kernel, &w).unwrap();
         let diff = before.log_value(&x).exp() - after.log_value(&x).exp();

@@ -2,10 +2,13 @@
 //! variable transform, reachability of the grasp and the pre-grasp, and the
 //! best-single baseline.
 //!
-//! **Search space.** The palm pose in the world, `[x, y, u, ax, ay, az]` with
-//! `z = z_min + u^2` (the paper's transformation of the bound `z >= z_min`; `z_min` is
-//! the table height plus the palm clearance). The optimiser minimises `-ln f` (eq. 2),
-//! which has the same argmax as `f` and stays finite far from every grasp.
+//! **Search space.** The palm pose in the world, in a local chart around each run's
+//! start ([`Chart`]): `[x, y, u, r1, r2, r3]` with `z = z_min + u^2` (the paper's
+//! transformation of the bound `z >= z_min`; `z_min` is the table height plus the
+//! palm clearance) and the orientation the start's turned by the rotation vector
+//! `r`, so that no search crosses a singularity of Euler angles. The optimiser
+//! minimises `-ln f` (eq. 2), which has the same argmax as `f` and stays finite far
+//! from every grasp.
 //!
 //! **Starts.** One run from every example grasp of the task mapped into the world,
 //! `T_i * theta_ik` (runs are independent; they go in parallel with `parallel`).
@@ -19,10 +22,11 @@
 //!    (at most `feasibility_budget` full checks, until `constrained_starts` are found):
 //!    the reachability's own projection of the optimum and of its pre-grasp (for the
 //!    robot: the collision-free IK attempt nearest the pose), the other optima and
-//!    the starts (best objective first), probes from the optimum along each parameter
-//!    axis (1, 3, 9, 27 cm or 0.1, 0.3, 0.9, 2.7 rad, nearest first), and the runs'
-//!    intermediate best points; plus the last reachable point on the segment from the
-//!    best of those toward the unconstrained optimum (bisection).
+//!    the starts (best objective first), probes from the optimum along each world axis
+//!    and about each of the palm's own axes (1, 3, 9, 27 cm or 0.1, 0.3, 0.9, 2.7 rad,
+//!    nearest first), and the runs' intermediate best points; plus the last reachable
+//!    point on the segment from the best of those toward the unconstrained optimum
+//!    (bisection, in the chart centred on the reachable point).
 //! 3. From each of them, a constrained Nelder–Mead run (1 mm / 1e-3 tolerances,
 //!    restarted from its result while it still gains): every evaluation *repairs* the
 //!    candidate into a reachable pose near it ([`Reachability::repair_near`]; for the
@@ -40,14 +44,14 @@
 //! has a grasp of the task; of its grasps of the task the one of highest quality `q`
 //! (the first among equals), mapped into the world by that model's `T_i`.
 
-use super::nelder_mead::{nelder_mead, NelderMeadOptions, NelderMeadResult};
+use super::chart::{rotated_about_own_axes, Chart};
+use super::nelder_mead::{nelder_mead_with_steps, NelderMeadOptions};
 use super::objective::Objective;
 use super::reach::Reachability;
+use super::seen::{Intrusion, SeenSurface};
 use super::{ExampleGrasp, Kernel, ModelFit, PlanError, Weights};
 use crate::config::CellConfig;
-use crate::geometry::{
-    params_from_pose, pose_error, pose_from_params, wrap_angle, Pose, PoseJson, PoseParams,
-};
+use crate::geometry::{pose_error, pose_from_params, Pose, PoseJson};
 use crate::robot::ik::IkSolution;
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, UnreachableReason};
@@ -81,6 +85,15 @@ pub struct PlanOptions {
     pub constrained_starts: usize,
     /// Most full reachability checks spent finding reachable starting points.
     pub feasibility_budget: usize,
+    /// Repair unreachable grasps — the plan's optimum and the best-single grasp
+    /// alike — by the constrained search (steps 2-3 of the module doc). Off in the
+    /// paper's mode ([`super::mode::PlanMode`]): an unreachable grasp is returned
+    /// marked unreachable.
+    pub repair: bool,
+    /// Repair the best-single grasp too (with `repair`). A caller that wants only
+    /// the plan may turn this off to save the baseline's constrained search; the
+    /// baseline is then checked but not repaired.
+    pub repair_best_single: bool,
 }
 
 impl PlanOptions {
@@ -112,6 +125,8 @@ impl PlanOptions {
             parallel: true,
             constrained_starts: 2,
             feasibility_budget: 48,
+            repair: true,
+            repair_best_single: true,
         }
     }
 }
@@ -131,13 +146,32 @@ pub enum Stage {
     Pregrasp,
 }
 
+/// What stops a grasp.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Blocked {
+    /// The arm cannot reach the pose.
+    Unreachable(UnreachableReason),
+    /// The open hand enters the seen surface at the grasp or along its approach.
+    SeenSurface(Intrusion),
+}
+
+impl std::fmt::Display for Blocked {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Blocked::Unreachable(r) => write!(f, "unreachable: {r}"),
+            Blocked::SeenSurface(i) => write!(f, "blocked by the seen surface: {i}"),
+        }
+    }
+}
+
 /// Why a grasp is infeasible.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Infeasible {
     /// The pose that failed.
     pub stage: Stage,
     /// Why.
-    pub reason: UnreachableReason,
+    pub reason: Blocked,
 }
 
 impl std::fmt::Display for Infeasible {
@@ -146,7 +180,7 @@ impl std::fmt::Display for Infeasible {
             Stage::Grasp => "grasp",
             Stage::Pregrasp => "pre-grasp",
         };
-        write!(f, "{stage} unreachable: {}", self.reason)
+        write!(f, "{stage} {}", self.reason)
     }
 }
 
@@ -228,9 +262,15 @@ pub struct BestSingle {
     pub model_name: String,
     /// Index of its grasp used.
     pub grasp_index: usize,
-    /// The grasp mapped into the world, its reachability and objective.
+    /// The grasp mapped into the world, its reachability and objective (or, when
+    /// that was unreachable and repaired, the best reachable grasp near it).
     #[serde(flatten)]
     pub grasp: PlannedGrasp,
+    /// The grasp as mapped, when it was unreachable and the grasp above is its
+    /// repair.
+    pub unrepaired: Option<UnconstrainedOptimum>,
+    /// Constrained runs of the repair.
+    pub constrained_runs: usize,
 }
 
 /// The planner's answer: the plan and the baseline.
@@ -242,22 +282,29 @@ pub struct PlanOutcome {
     pub best_single: BestSingle,
 }
 
-/// Search variables `[x, y, u, ax, ay, az]` of world parameters (`u = sqrt(z - z_min)`,
-/// 0 below the bound).
-pub fn search_from_params(p: &PoseParams, z_min_m: f64) -> [f64; 6] {
-    [
-        p[0],
-        p[1],
-        (p[2] - z_min_m).max(0.0).sqrt(),
-        p[3],
-        p[4],
-        p[5],
-    ]
+/// The initial simplex of a run in its chart ([`Chart`]): `fminsearch`'s rule (5 %,
+/// or 0.00025 for a zero) on the position coordinates, as the paper's search had,
+/// and [`INITIAL_STEP_RAD`] on each rotation coordinate (which start at 0, the
+/// chart's centre).
+fn initial_steps(x0: &[f64; 6]) -> [f64; 6] {
+    std::array::from_fn(|i| {
+        if i >= 3 {
+            INITIAL_STEP_RAD
+        } else if x0[i] != 0.0 {
+            0.05 * x0[i]
+        } else {
+            0.00025
+        }
+    })
 }
 
-/// World parameters of search variables (`z = z_min + u^2`).
-pub fn params_from_search(x: &[f64], z_min_m: f64) -> PoseParams {
-    [x[0], x[1], z_min_m + x[2] * x[2], x[3], x[4], x[5]]
+/// The initial simplex's step on each rotation coordinate (rad, about 3 deg).
+pub const INITIAL_STEP_RAD: f64 = 0.05;
+
+/// `pose` with its height raised to `z_min_m` when below it.
+fn above(mut pose: Pose, z_min_m: f64) -> Pose {
+    pose.translation.z = pose.translation.z.max(z_min_m);
+    pose
 }
 
 /// The pre-grasp of a grasp: backed off along the palm's -z by `offset_m`.
@@ -284,6 +331,8 @@ struct Feasible {
 /// grasp's solution first, then from `pre_seeds`.
 struct Checker<'a> {
     reach: &'a dyn Reachability,
+    /// The seen surface the open hand must not enter (with its approach).
+    seen: Option<&'a SeenSurface<'a>>,
     offset_m: f64,
     checks: usize,
 }
@@ -301,9 +350,15 @@ impl Checker<'_> {
         let fail = |stage| {
             move |u: crate::robot::Unreachable| Infeasible {
                 stage,
-                reason: u.reason,
+                reason: Blocked::Unreachable(u.reason),
             }
         };
+        if let Some(hit) = self.seen.and_then(|s| s.intrusion(pose, spread_rad)) {
+            return Err(Infeasible {
+                stage: Stage::Grasp,
+                reason: Blocked::SeenSurface(hit),
+            });
+        }
         let reach = |palm: &Pose, seeds: &[ArmJoints]| {
             if quick {
                 self.reach.reach_near(palm, &hand, seeds)
@@ -334,6 +389,11 @@ impl Checker<'_> {
         let hand = open_hand(spread_rad);
         self.checks += 1;
         let (reached, grasp) = self.reach.repair_near(pose, &hand, seeds)?;
+        if let Some(seen) = self.seen {
+            if seen.intrusion(&reached, spread_rad).is_some() {
+                return None;
+            }
+        }
         self.checks += 1;
         let pre = pregrasp_pose(&reached, self.offset_m);
         let pre_seeds: Vec<ArmJoints> = std::iter::once(grasp.joints)
@@ -344,17 +404,18 @@ impl Checker<'_> {
     }
 }
 
-/// One unconstrained run and the points where its best value improved.
+/// One unconstrained run: its optimum and the points where its best value improved.
 struct Run {
-    result: NelderMeadResult,
-    trail: Vec<(f64, [f64; 6])>,
+    optimum: Point,
+    evaluations: usize,
+    trail: Vec<Point>,
 }
 
-/// A point of the search space with its `-ln f`.
+/// A palm pose with its `-ln f`.
 #[derive(Debug, Clone, Copy)]
 struct Point {
     g: f64,
-    x: [f64; 6],
+    pose: Pose,
 }
 
 struct Problem<'a> {
@@ -364,34 +425,53 @@ struct Problem<'a> {
 }
 
 impl Problem<'_> {
-    fn params(&self, x: &[f64]) -> PoseParams {
-        params_from_search(x, self.options.z_min_m)
+    fn g(&self, pose: &Pose) -> f64 {
+        -self.objective.log_value_at(pose)
     }
 
-    fn g(&self, x: &[f64]) -> f64 {
-        -self.objective.log_value(&self.params(x))
+    fn point(&self, pose: Pose) -> Point {
+        Point {
+            g: self.g(&pose),
+            pose,
+        }
     }
 
-    fn spread_at(&self, p: &PoseParams) -> f64 {
-        self.grasps[self.objective.dominant_grasp(p)].spread_rad
+    fn spread_at(&self, pose: &Pose) -> f64 {
+        self.grasps[self.objective.dominant_grasp(pose)].spread_rad
     }
 
-    fn run(&self, x0: &[f64; 6]) -> Run {
+    fn chart(&self, centre: &Pose) -> Chart {
+        Chart::at(centre, self.options.z_min_m)
+    }
+
+    /// One unconstrained run in the chart centred on `start`.
+    fn run(&self, start: &Pose) -> Run {
+        let chart = self.chart(start);
+        let x0 = chart.coordinates(start);
         let mut best = f64::INFINITY;
         let mut trail = Vec::new();
-        let result = nelder_mead(
+        let result = nelder_mead_with_steps(
             |x| {
-                let g = self.g(x);
+                let pose = chart.pose(x);
+                let g = self.g(&pose);
                 if g < best {
                     best = g;
-                    trail.push((g, [x[0], x[1], x[2], x[3], x[4], x[5]]));
+                    trail.push(Point { g, pose });
                 }
                 g
             },
-            x0,
+            &x0,
+            &initial_steps(&x0),
             &self.options.nelder_mead,
         );
-        Run { result, trail }
+        Run {
+            optimum: Point {
+                g: result.fx,
+                pose: chart.pose(&result.x),
+            },
+            evaluations: result.evaluations,
+            trail,
+        }
     }
 
     /// Constrained runs from a reachable point. Each evaluation repairs the candidate
@@ -414,34 +494,34 @@ impl Problem<'_> {
         let mut evaluations = 0;
         for _ in 0..=CONSTRAINED_RESTARTS {
             let from = best.0;
-            let result = nelder_mead(
+            let chart = self.chart(&from.pose);
+            let x0 = chart.coordinates(&from.pose);
+            let result = nelder_mead_with_steps(
                 |x| {
-                    let p = self.params(x);
-                    let pose = pose_from_params(&p);
+                    let pose = chart.pose(x);
                     let seeds = [last, best.1, feasible].map(|f| f.grasp.joints);
                     let pre_seeds = [last, best.1, feasible].map(|f| f.pregrasp.joints);
                     let Some((reached, f)) =
-                        checker.repair(&pose, self.spread_at(&p), &seeds, &pre_seeds)
+                        checker.repair(&pose, self.spread_at(&pose), &seeds, &pre_seeds)
                     else {
                         return f64::INFINITY;
                     };
-                    let q = params_from_pose(&reached);
-                    if q[2] < self.options.z_min_m {
+                    if reached.translation.z < self.options.z_min_m {
                         return f64::INFINITY;
                     }
-                    let g = -self.objective.log_value(&q);
+                    let g = self.g(&reached);
                     if !g.is_finite() {
                         return f64::INFINITY;
                     }
                     last = f;
                     if g < best.0.g {
-                        let x = search_from_params(&q, self.options.z_min_m);
-                        best = (Point { g, x }, f);
+                        best = (Point { g, pose: reached }, f);
                     }
                     let (dp, dr) = pose_error(&pose, &reached);
                     g + dp / 0.01 + dr / 0.1
                 },
-                &from.x,
+                &x0,
+                &initial_steps(&x0),
                 &self.options.constrained_nelder_mead,
             );
             evaluations += result.evaluations;
@@ -452,9 +532,8 @@ impl Problem<'_> {
         (best.0, best.1, evaluations)
     }
 
-    fn planned(&self, x: &[f64], feasible: Result<Option<Feasible>, Infeasible>) -> PlannedGrasp {
-        let p = self.params(x);
-        self.planned_at(pose_from_params(&p), self.spread_at(&p), feasible)
+    fn planned(&self, pose: Pose, feasible: Result<Option<Feasible>, Infeasible>) -> PlannedGrasp {
+        self.planned_at(pose, self.spread_at(&pose), feasible)
     }
 
     fn planned_at(
@@ -494,6 +573,20 @@ pub fn plan(
     options: &PlanOptions,
     reach: Option<&dyn Reachability>,
 ) -> Result<PlanOutcome, PlanError> {
+    plan_with(fits, grasps, task, options, reach, None)
+}
+
+/// [`plan`] with the object's seen surface as an obstacle (when reachability is
+/// checked): a grasp whose open hand enters it, at the grasp or along the
+/// approach, is infeasible like an unreachable one, for the plan and best single.
+pub fn plan_with(
+    fits: &[ModelFit],
+    grasps: &[ExampleGrasp],
+    task: &str,
+    options: &PlanOptions,
+    reach: Option<&dyn Reachability>,
+    seen: Option<&SeenSurface>,
+) -> Result<PlanOutcome, PlanError> {
     if !options.z_min_m.is_finite() {
         return Err(PlanError::BadValue {
             what: "plan z_min_m".into(),
@@ -509,66 +602,62 @@ pub fn plan(
         options,
     };
     let z_min = options.z_min_m;
-    let start_params: Vec<PoseParams> = problem
+    let starts: Vec<Pose> = problem
         .objective
         .grasps()
         .map(|g| {
             let grasp = &grasps[g];
             let world =
                 fits[grasp.model].base_from_model * pose_from_params(&grasp.model_from_palm);
-            params_from_pose(&world)
+            above(world, z_min)
         })
-        .collect();
-    let starts: Vec<[f64; 6]> = start_params
-        .iter()
-        .map(|p| search_from_params(p, z_min))
         .collect();
     let runs: Vec<Run> = if options.parallel {
         starts.par_iter().map(|x0| problem.run(x0)).collect()
     } else {
         starts.iter().map(|x0| problem.run(x0)).collect()
     };
-    let mut evaluations: usize = runs.iter().map(|r| r.result.evaluations).sum();
+    let mut evaluations: usize = runs.iter().map(|r| r.evaluations).sum();
     // Optima, best first (the earlier start among equals).
-    let mut optima: Vec<Point> = runs
-        .iter()
-        .map(|r| Point {
-            g: r.result.fx,
-            x: std::array::from_fn(|i| r.result.x[i]),
-        })
-        .collect();
+    let mut optima: Vec<Point> = runs.iter().map(|r| r.optimum).collect();
     optima.sort_by(|a, b| a.g.total_cmp(&b.g));
     let best = optima[0];
 
     let mut checker = reach.map(|reach| Checker {
         reach,
+        seen,
         offset_m: options.pregrasp_offset_m,
         checks: 0,
     });
     let mut unconstrained_optimum = None;
     let mut constrained_runs = 0;
     let grasp = match checker.as_mut() {
-        None => problem.planned(&best.x, Ok(None)),
+        None => problem.planned(best.pose, Ok(None)),
         Some(checker) => {
-            let p = problem.params(&best.x);
-            let pose = pose_from_params(&p);
-            match checker.check(&pose, problem.spread_at(&p), &[], &[], false) {
-                Ok(f) => problem.planned(&best.x, Ok(Some(f))),
+            let pose = best.pose;
+            match checker.check(&pose, problem.spread_at(&pose), &[], &[], false) {
+                Ok(f) => problem.planned(pose, Ok(Some(f))),
+                Err(why) if !options.repair => problem.planned(pose, Err(why)),
                 Err(why) => {
-                    let top = problem.planned(&best.x, Err(why.clone()));
+                    let top = problem.planned(pose, Err(why.clone()));
                     unconstrained_optimum = Some(UnconstrainedOptimum {
                         pose,
                         objective: top.objective,
                         log_objective: top.log_objective,
                         unreachable: why,
                     });
+                    let mut from_starts: Vec<Point> =
+                        starts.iter().map(|s| problem.point(*s)).collect();
+                    from_starts.sort_by(|a, b| a.g.total_cmp(&b.g));
+                    let mut trail: Vec<Point> =
+                        runs.iter().flat_map(|r| r.trail.iter().copied()).collect();
+                    trail.sort_by(|a, b| a.g.total_cmp(&b.g));
                     let found = best_reachable(
                         &problem,
                         checker,
                         &best,
-                        &optima[1..],
-                        &starts,
-                        &runs,
+                        vec![optima[1..].to_vec(), from_starts],
+                        trail,
                         &mut evaluations,
                         &mut constrained_runs,
                     );
@@ -577,12 +666,11 @@ pub fn plan(
             }
         }
     };
-    let p = params_from_pose(&grasp.pose);
-    let breakdown = problem.objective.breakdown(&p);
+    let breakdown = problem.objective.breakdown(&grasp.pose);
     let plan = GraspPlan {
         task: task.to_string(),
         kernel: options.kernel,
-        dominant_grasp: problem.objective.dominant_grasp(&p),
+        dominant_grasp: problem.objective.dominant_grasp(&grasp.pose),
         per_model_contribution: breakdown.per_model_log.iter().map(|l| l.exp()).collect(),
         grasp,
         reachability_checked: reach.is_some(),
@@ -592,11 +680,12 @@ pub fn plan(
         evaluations,
         reach_checks: 0,
     };
-    let best_single = best_single(fits, grasps, &problem, checker.as_mut());
+    let best_single = best_single(fits, grasps, &problem, checker.as_mut(), &mut evaluations);
     let reach_checks = checker.map_or(0, |c| c.checks);
     Ok(PlanOutcome {
         plan: GraspPlan {
             reach_checks,
+            evaluations,
             ..plan
         },
         best_single,
@@ -610,26 +699,24 @@ const CONSTRAINED_RESTARTS: usize = 2;
 const PROBE_SCALES: [f64; 4] = [1.0, 3.0, 9.0, 27.0];
 
 /// Steps 2 and 3 of the module doc: the best reachable grasp found, if any.
-#[allow(clippy::too_many_arguments)]
+/// `candidates` are groups of starting points tried in order after the projections
+/// of the optimum (other optima, then starts, each best first); the axis probes
+/// come next, then `trail` (the runs' intermediate best points, best first).
 fn best_reachable(
     problem: &Problem,
     checker: &mut Checker,
     optimum: &Point,
-    other_optima: &[Point],
-    starts: &[[f64; 6]],
-    runs: &[Run],
+    candidates: Vec<Vec<Point>>,
+    trail: Vec<Point>,
     evaluations: &mut usize,
     constrained_runs: &mut usize,
 ) -> Option<PlannedGrasp> {
     let options = problem.options;
-    // Candidate starting points: other optima, then starts (each best first), then
-    // probes along each parameter axis from the optimum (nearest first), then the
-    // runs' intermediate best points (best first).
+    let z_min = options.z_min_m;
     // First of all, the implementation's own projections of the optimum (its grasp,
     // and its pre-grasp moved forward by the offset).
-    let centre = problem.params(&optimum.x);
-    let pose = pose_from_params(&centre);
-    let hand = open_hand(problem.spread_at(&centre));
+    let pose = optimum.pose;
+    let hand = open_hand(problem.spread_at(&pose));
     let offset = Translation3::new(0.0, 0.0, options.pregrasp_offset_m);
     let mut projected = Vec::new();
     for (target, back) in [
@@ -638,45 +725,32 @@ fn best_reachable(
     ] {
         checker.checks += 1;
         if let Some((reached, _)) = checker.reach.nearest_reachable(&target, &hand) {
-            let x = search_from_params(&params_from_pose(&(reached * back)), options.z_min_m);
-            projected.push(Point {
-                g: problem.g(&x),
-                x,
-            });
+            projected.push(problem.point(above(reached * back, z_min)));
         }
     }
-    let mut groups: Vec<Vec<Point>> = vec![projected, other_optima.to_vec()];
-    let mut from_starts: Vec<Point> = starts
-        .iter()
-        .map(|x| Point {
-            g: problem.g(x),
-            x: *x,
-        })
-        .collect();
-    from_starts.sort_by(|a, b| a.g.total_cmp(&b.g));
-    groups.push(from_starts);
+    let mut groups: Vec<Vec<Point>> = vec![projected];
+    groups.extend(candidates);
+    // Probes along each world axis and about each of the palm's own axes.
     let mut probes = Vec::new();
     for scale in PROBE_SCALES {
         for d in 0..6 {
             for sign in [-1.0, 1.0] {
-                let mut p = centre;
-                p[d] += sign * scale * if d < 3 { 0.01 } else { 0.1 };
-                let x = search_from_params(&p, options.z_min_m);
-                probes.push(Point {
-                    g: problem.g(&x),
-                    x,
-                });
+                let probe = if d < 3 {
+                    let mut p = pose;
+                    p.translation.vector[d] += sign * scale * 0.01;
+                    above(p, z_min)
+                } else {
+                    let mut w = [0.0; 3];
+                    w[d - 3] = sign * scale * 0.1;
+                    rotated_about_own_axes(&pose, w)
+                };
+                probes.push(problem.point(probe));
             }
         }
     }
     groups.push(probes);
-    let mut trail: Vec<Point> = runs
-        .iter()
-        .flat_map(|r| r.trail.iter().map(|&(g, x)| Point { g, x }))
-        .collect();
-    trail.sort_by(|a, b| a.g.total_cmp(&b.g));
     groups.push(trail);
-    let mut checked: Vec<Pose> = vec![pose_from_params(&problem.params(&optimum.x))];
+    let mut checked: Vec<Pose> = vec![pose];
     let mut feasible: Vec<(Point, Feasible)> = Vec::new();
     let mut budget = options.feasibility_budget;
     'search: for group in groups {
@@ -684,18 +758,18 @@ fn best_reachable(
             if feasible.len() >= options.constrained_starts || budget == 0 {
                 break 'search;
             }
-            let p = problem.params(&point.x);
-            let pose = pose_from_params(&p);
             // Skip near-duplicates of points already checked.
             if checked.iter().any(|c| {
-                let (dp, dr) = pose_error(c, &pose);
+                let (dp, dr) = pose_error(c, &point.pose);
                 dp < 2e-3 && dr < 2e-3
             }) {
                 continue;
             }
-            checked.push(pose);
+            checked.push(point.pose);
             budget -= 1;
-            if let Ok(f) = checker.check(&pose, problem.spread_at(&p), &[], &[], false) {
+            if let Ok(f) =
+                checker.check(&point.pose, problem.spread_at(&point.pose), &[], &[], false)
+            {
                 feasible.push((point, f));
             }
         }
@@ -703,19 +777,21 @@ fn best_reachable(
     feasible.sort_by(|a, b| a.0.g.total_cmp(&b.0.g));
     let (first, first_f) = *feasible.first()?;
     // The last reachable point on the way from the best reachable one to the optimum
-    // (angles unwrapped toward the reachable point).
-    let mut target = optimum.x;
-    for (t, f) in target.iter_mut().zip(&first.x).skip(3) {
-        *t = f + wrap_angle(*t - f);
-    }
+    // (in the chart centred on the reachable point: the shortest rotation).
+    let chart = problem.chart(&first.pose);
+    let from = chart.coordinates(&first.pose);
+    let target = chart.coordinates(&pose);
+    let at = |t: f64| -> Pose {
+        let x: [f64; 6] = std::array::from_fn(|i| from[i] + t * (target[i] - from[i]));
+        chart.pose(&x)
+    };
     let (mut lo, mut hi) = (0.0, 1.0);
     let mut lo_f = first_f;
     for _ in 0..10 {
         let t = 0.5 * (lo + hi);
-        let x: [f64; 6] = std::array::from_fn(|i| first.x[i] + t * (target[i] - first.x[i]));
-        let p = problem.params(&x);
+        let p = at(t);
         match checker.check(
-            &pose_from_params(&p),
+            &p,
             problem.spread_at(&p),
             &[lo_f.grasp.joints, first_f.grasp.joints],
             &[lo_f.pregrasp.joints, first_f.pregrasp.joints],
@@ -729,14 +805,7 @@ fn best_reachable(
         }
     }
     if lo > 0.0 {
-        let x: [f64; 6] = std::array::from_fn(|i| first.x[i] + lo * (target[i] - first.x[i]));
-        feasible.push((
-            Point {
-                g: problem.g(&x),
-                x,
-            },
-            lo_f,
-        ));
+        feasible.push((problem.point(at(lo)), lo_f));
     }
     let mut best: Option<(Point, Feasible)> = None;
     for &(point, f) in &feasible {
@@ -747,25 +816,28 @@ fn best_reachable(
             best = Some((found, found_f));
         }
     }
-    let (Point { x, .. }, f) = best?;
+    let (Point { pose, .. }, f) = best?;
     // Confirm with the full check, seeded with the solution found.
-    let p = problem.params(&x);
     let confirmed = checker.check(
-        &pose_from_params(&p),
-        problem.spread_at(&p),
+        &pose,
+        problem.spread_at(&pose),
         &[f.grasp.joints],
         &[f.pregrasp.joints],
         false,
     );
-    Some(problem.planned(&x, confirmed.map(Some)))
+    Some(problem.planned(pose, confirmed.map(Some)))
 }
 
-/// The best-single baseline (see the module doc).
+/// The best-single baseline (see the module doc). When its grasp is unreachable and
+/// the options repair, the same constrained search as the plan's runs on an
+/// objective made of that grasp's term alone; the grasp's objective is reported
+/// with the full eq. 2, as the plan's.
 fn best_single(
     fits: &[ModelFit],
     grasps: &[ExampleGrasp],
     problem: &Problem,
     checker: Option<&mut Checker>,
+    evaluations: &mut usize,
 ) -> BestSingle {
     let weights = &problem.options.weights;
     // The objective holds at least one grasp of the task.
@@ -787,22 +859,89 @@ fn best_single(
     let g = best.map(|b| b.2).unwrap_or(0);
     let grasp = &grasps[g];
     let pose = fits[grasp.model].base_from_model * pose_from_params(&grasp.model_from_palm);
-    let feasible = match checker {
-        None => Ok(None),
-        Some(c) => c.check(&pose, grasp.spread_rad, &[], &[], false).map(Some),
+    let mut unrepaired = None;
+    let mut constrained_runs = 0;
+    let planned = match checker {
+        None => problem.planned_at(pose, grasp.spread_rad, Ok(None)),
+        Some(c) => match c.check(&pose, grasp.spread_rad, &[], &[], false) {
+            Ok(f) => problem.planned_at(pose, grasp.spread_rad, Ok(Some(f))),
+            Err(why) if !(problem.options.repair && problem.options.repair_best_single) => {
+                problem.planned_at(pose, grasp.spread_rad, Err(why))
+            }
+            Err(why) => {
+                let top = problem.planned_at(pose, grasp.spread_rad, Err(why.clone()));
+                unrepaired = Some(UnconstrainedOptimum {
+                    pose,
+                    objective: top.objective,
+                    log_objective: top.log_objective,
+                    unreachable: why,
+                });
+                repair_single(
+                    fits,
+                    grasp,
+                    problem,
+                    c,
+                    pose,
+                    evaluations,
+                    &mut constrained_runs,
+                )
+                .unwrap_or(top)
+            }
+        },
     };
     BestSingle {
         model: grasp.model,
         model_name: fits[grasp.model].name.clone(),
         grasp_index: g,
-        grasp: problem.planned_at(pose, grasp.spread_rad, feasible),
+        grasp: planned,
+        unrepaired,
+        constrained_runs,
     }
+}
+
+/// The best reachable grasp near the best-single grasp `pose` (unreachable), by the
+/// plan's constrained search on the objective of `grasp`'s term alone, reported
+/// with the full objective of `problem`.
+fn repair_single(
+    fits: &[ModelFit],
+    grasp: &ExampleGrasp,
+    problem: &Problem,
+    checker: &mut Checker,
+    pose: Pose,
+    evaluations: &mut usize,
+    constrained_runs: &mut usize,
+) -> Option<PlannedGrasp> {
+    let options = problem.options;
+    let alone = std::slice::from_ref(grasp);
+    let objective =
+        Objective::new(fits, alone, &grasp.task, &options.kernel, &options.weights).ok()?;
+    let single = Problem {
+        objective,
+        grasps: alone,
+        options,
+    };
+    let start = single.point(above(pose, options.z_min_m));
+    let found = best_reachable(
+        &single,
+        checker,
+        &start,
+        Vec::new(),
+        Vec::new(),
+        evaluations,
+        constrained_runs,
+    )?;
+    let log_objective = problem.objective.log_value_at(&found.pose);
+    Some(PlannedGrasp {
+        objective: log_objective.exp(),
+        log_objective,
+        ..found
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::pose_from_params;
+    use crate::geometry::{params_from_pose, pose_from_params, wrap_angle, PoseParams};
     use crate::plan::test_support::grasp;
     use crate::robot::Unreachable;
     use std::f64::consts::PI;
@@ -1007,14 +1146,117 @@ mod tests {
         assert_eq!(unc.unreachable.stage, Stage::Grasp);
         assert!(matches!(
             unc.unreachable.reason,
-            UnreachableReason::OutsideWorkspace { .. }
+            Blocked::Unreachable(UnreachableReason::OutsideWorkspace { .. })
         ));
-        // The baseline is the grasp itself, unreachable.
-        assert!(!out.best_single.grasp.reachable);
+        // The baseline is the same grasp: repaired the same way.
+        let single = &out.best_single;
+        assert!(single.grasp.reachable && single.grasp.joints.is_some());
+        let (dp, dr) = pose_error(&single.grasp.pose, &out.plan.grasp.pose);
+        assert!(dp < 1e-3 && dr < 1e-2, "{dp} {dr}");
         assert_eq!(
-            out.best_single.grasp.unreachable.as_ref().unwrap().stage,
+            single.unrepaired.as_ref().unwrap().unreachable.stage,
             Stage::Grasp
         );
+    }
+
+    /// Issue 19: best single gets a reachable grasp where one exists near its
+    /// optimum, exactly as the other methods do; in the paper's mode neither is
+    /// repaired and both fail as unreachable.
+    #[test]
+    fn best_single_is_repaired_like_the_plan_and_not_in_the_paper_mode() {
+        // Two models; the better-fitting one's grasp is out of reach (x > 0.63), and
+        // the plan's optimum lies between the two grasps, out of reach too.
+        let fits = vec![
+            fit("near_best", [0.6, 0.0, 0.0, 0.0, 0.0, 0.0], 1e-6),
+            fit("other", [0.6, 0.0, 0.0, 0.0, 0.0, 0.0], 2e-6),
+        ];
+        let sigma = [0.01, 0.01, 0.01, 0.1, 0.1, 0.1];
+        let mut grasps = vec![
+            grasp(0, "top", [0.06, 0.0, 0.15, PI, 0.0, 0.3], 0.2),
+            grasp(1, "top", [0.05, 0.01, 0.15, PI, 0.0, 0.2], 0.2),
+        ];
+        grasps.iter_mut().for_each(|g| g.sigma = sigma);
+        let region = Region(|p: &Pose| p.translation.x <= 0.63);
+        for kernel in [Kernel::LAPLACE_DEFAULT, Kernel::GAUSSIAN_R_DEFAULT] {
+            let options = PlanOptions::with_kernel(kernel);
+            let out = plan(&fits, &grasps, "top", &options, Some(&region)).unwrap();
+            let single = &out.best_single;
+            assert_eq!(single.grasp_index, 0);
+            let unrepaired = single
+                .unrepaired
+                .as_ref()
+                .expect("the grasp was out of reach");
+            assert!((unrepaired.pose.translation.x - 0.66).abs() < 1e-9);
+            for g in [&single.grasp, &out.plan.grasp] {
+                assert!(g.reachable && g.joints.is_some() && g.pregrasp_joints.is_some());
+                let x = g.pose.translation.x;
+                assert!(x <= 0.63 && x > 0.629, "{} {x}", kernel.name());
+            }
+            // The repair stays with its own grasp: same height, yaw and roll as it.
+            let want = fits[0].base_from_model * pose_from_params(&grasps[0].model_from_palm);
+            let mut moved = want;
+            moved.translation.x = single.grasp.pose.translation.x;
+            let (dp, dr) = pose_error(&single.grasp.pose, &moved);
+            assert!(dp < 2e-3 && dr < 2e-2, "{} {dp} {dr}", kernel.name());
+            assert!(single.constrained_runs > 0);
+
+            let mut paper = options;
+            crate::plan::PlanMode::Paper {
+                protocol: crate::plan::PaperProtocol::Simulation,
+            }
+            .apply(&mut paper);
+            let out = plan(&fits, &grasps, "top", &paper, Some(&region)).unwrap();
+            for g in [&out.best_single.grasp, &out.plan.grasp] {
+                assert!(!g.reachable && g.unreachable.is_some(), "{g:?}");
+            }
+            assert!(out.best_single.unrepaired.is_none());
+            assert!(out.plan.unconstrained_optimum.is_none());
+            assert_eq!(out.plan.constrained_runs, 0);
+        }
+    }
+
+    /// Issue 17: a palm pose planned inside the object's seen points is rejected, for
+    /// the plan and for best single; the grasp found instead clears the points along
+    /// its whole approach.
+    #[test]
+    fn a_palm_inside_the_seen_points_is_rejected() {
+        use crate::plan::seen::{tests::cylinder_cloud, SeenSurface, SeenSurfaceOptions};
+        let robot = crate::robot::shipped_robot();
+        let hand = crate::quality::autograsp::tests::hand_of(&robot);
+        let cloud = cylinder_cloud();
+        let seen = SeenSurface::new(&hand, &cloud, SeenSurfaceOptions::default()).unwrap();
+        // The model's side grasp puts the palm on the cylinder's axis, facing +x.
+        let fits = vec![fit("cyl", [0.6, 0.0, 0.0, 0.0, 0.0, 0.0], 1e-5)];
+        let mut g = grasp(0, "side", [0.0, 0.0, 0.05, 0.0, PI / 2.0, 0.0], 0.2);
+        g.sigma = [0.01, 0.01, 0.01, 0.1, 0.1, 0.1];
+        let grasps = vec![g];
+        let everywhere = Region(|_: &Pose| true);
+        let options = PlanOptions::with_kernel(Kernel::LAPLACE_DEFAULT);
+        let blind = plan(&fits, &grasps, "side", &options, Some(&everywhere)).unwrap();
+        assert!(seen.intrusion(&blind.plan.grasp.pose, 0.0).is_some());
+        let out = plan_with(
+            &fits,
+            &grasps,
+            "side",
+            &options,
+            Some(&everywhere),
+            Some(&seen),
+        )
+        .unwrap();
+        let unc = out.plan.unconstrained_optimum.as_ref().expect("rejected");
+        assert!(
+            matches!(unc.unreachable.reason, Blocked::SeenSurface(_)),
+            "{unc:?}"
+        );
+        assert!(unc.unreachable.to_string().contains("seen surface"));
+        for g in [&out.plan.grasp, &out.best_single.grasp] {
+            assert!(g.reachable, "{g:?}");
+            assert_eq!(seen.intrusion(&g.pose, g.spread_rad), None, "{g:?}");
+            assert!(g.log_objective < unc.log_objective);
+        }
+        // Moved out of the object, not far off.
+        let (dp, _) = pose_error(&out.plan.grasp.pose, &unc.pose);
+        assert!(dp > 0.01 && dp < 0.3, "{dp}");
     }
 
     #[test]
@@ -1046,7 +1288,9 @@ mod tests {
         assert!(out.plan.grasp.unreachable.is_some());
         let unc = out.plan.unconstrained_optimum.as_ref().unwrap();
         assert_eq!(unc.pose, out.plan.grasp.pose);
-        assert!(out.plan.reach_checks <= 2 * (1 + options.feasibility_budget) + 2);
+        // The plan's search and best single's repair, each within its budget.
+        assert!(out.plan.reach_checks <= 2 * (2 * (1 + options.feasibility_budget) + 2));
+        assert!(!out.best_single.grasp.reachable && out.best_single.unrepaired.is_some());
     }
 
     #[test]

@@ -1,6 +1,10 @@
-//! Stability ranges of a grasp (specs/method.md): the grasp's pose parameters
-//! `[x, y, z, ax, ay, az]` (palm in the object frame, URDF rpy) are moved one at a
-//! time, in both directions, in fixed steps, re-simulating the auto-grasp each time,
+//! Stability ranges of a grasp (specs/method.md): the grasp's pose (palm in the object
+//! frame) is moved along one DOF at a time — translation along the object frame's x,
+//! y, z, and rotation about the palm's **own** x, y, z axes (the components of the
+//! rotation vector `log(R_theta^T R)` the planner's kernels measure,
+//! [`crate::plan::chart`]; never a difference of Euler angles, which at pitch -90 deg
+//! would turn the hand about one axis twice and never about the other) — in both
+//! directions, in fixed steps, re-simulating the auto-grasp each time,
 //! until the grasp is no longer force closure, or a cap is reached. A displaced
 //! hand whose open pre-shape would intersect the object is backed off along its
 //! approach axis until clear (by at most [`StabilityOptions::retreat_m`]), as the
@@ -17,8 +21,9 @@ use super::autograsp::{
     evaluate_grasp, retreat_until_clear, AutoGraspOptions, GraspObject, GraspSimError,
 };
 use super::QualityParams;
-use crate::geometry::{pose_from_params, PoseParams};
+use crate::geometry::{pose_from_params, Pose, PoseParams};
 use crate::robot::hand::HandModel;
+use nalgebra::{UnitQuaternion, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -99,7 +104,8 @@ impl StabilityOptions {
     }
 }
 
-/// Per-DOF stability ranges, in parameter order `[x, y, z, ax, ay, az]` (m, rad).
+/// Per-DOF stability ranges, in order `[x, y, z, rx, ry, rz]`: translation along the
+/// object frame's axes (m), rotation about the palm's own axes (rad).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StabilityRange {
@@ -111,6 +117,21 @@ pub struct StabilityRange {
     pub delta: [f64; 6],
     /// sigma_d = Delta_d / c.
     pub sigma: [f64; 6],
+}
+
+/// The pose of `params` moved by `offset` along DOF `dof`: translation along the object
+/// frame's axis `dof` (0..3), or rotation about the palm's own axis `dof - 3`.
+pub fn displaced(params: &PoseParams, dof: usize, offset: f64) -> Pose {
+    let pose = pose_from_params(params);
+    if dof < 3 {
+        let mut p = pose;
+        p.translation.vector[dof] += offset;
+        p
+    } else {
+        let mut w = Vector3::zeros();
+        w[dof - 3] = offset;
+        pose * UnitQuaternion::from_scaled_axis(w)
+    }
 }
 
 /// The stability ranges of the grasp at `params` (palm in the object frame) with
@@ -126,14 +147,8 @@ pub fn stability_range(
     options: &StabilityOptions,
 ) -> Result<StabilityRange, GraspSimError> {
     options.validate()?;
-    let stable = |p: &PoseParams| -> Result<bool, GraspSimError> {
-        let Some(pose) = retreat_until_clear(
-            hand,
-            object,
-            &pose_from_params(p),
-            spread_rad,
-            options.retreat_m,
-        ) else {
+    let stable = |p: &Pose| -> Result<bool, GraspSimError> {
+        let Some(pose) = retreat_until_clear(hand, object, p, spread_rad, options.retreat_m) else {
             return Ok(false);
         };
         let e = evaluate_grasp(hand, object, &pose, spread_rad, grasp, quality, false)?;
@@ -150,9 +165,7 @@ pub fn stability_range(
                 if offset > cap * (1.0 + 1e-9) {
                     return Ok(cap);
                 }
-                let mut p = *params;
-                p[dof] += sign * offset;
-                if !stable(&p)? {
+                if !stable(&displaced(params, dof, sign * offset))? {
                     return Ok(offset - 0.5 * step);
                 }
                 k += 1;
@@ -180,6 +193,27 @@ mod tests {
     use crate::quality::autograsp::tests::{cylinder, hand_of, side_pose};
     use crate::robot::shipped_robot;
     use std::path::Path;
+
+    #[test]
+    fn rotations_turn_the_hand_about_its_own_axes_even_at_pitch_minus_90() {
+        // A side grasp at the rpy singularity: each rotation DOF turns the palm by
+        // exactly the offset, about three different axes.
+        let params = [0.0, 0.08, 0.06, -1.571, -1.552, -1.571];
+        let base = pose_from_params(&params);
+        let mut axes = Vec::new();
+        for dof in 3..6 {
+            let moved = displaced(&params, dof, 0.05);
+            let (dp, dr) = crate::geometry::pose_error(&base, &moved);
+            assert!(dp < 1e-12 && (dr - 0.05).abs() < 1e-9, "{dof}: {dp} {dr}");
+            let turn = base.rotation.inverse() * moved.rotation;
+            axes.push(turn.axis().unwrap().into_inner());
+        }
+        for (i, a) in axes.iter().enumerate() {
+            assert!((a[i] - 1.0).abs() < 1e-9, "{i}: {a}");
+        }
+        let moved = displaced(&params, 1, -0.01);
+        assert!((moved.translation.y - 0.07).abs() < 1e-12);
+    }
 
     #[test]
     fn side_grasp_of_a_long_cylinder_is_more_stable_along_its_axis() {

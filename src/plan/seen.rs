@@ -1,0 +1,251 @@
+//! The surface the camera saw as an obstacle (issue 17): the open hand at the grasp,
+//! and at every point of its approach from the pre-grasp, must not reach into the
+//! object's segmented points (robot base frame) deeper than a tolerance.
+//!
+//! The planner checks it wherever it checks reachability ([`super::planner`]: the
+//! optimum, the starting points of the constrained search and every repaired pose
+//! of it), so a grasp whose open palm starts inside the object is refused and the
+//! search moves to the nearest grasp that clears the seen surface. It applies when
+//! reachability is checked (the cell's setting).
+//!
+//! The cloud is thinned on a voxel grid first (a point per `voxel_m` cube); the
+//! approach is sampled every `step_m` from the grasp back to the pre-grasp. Per hand
+//! shape, only the points inside its box swept along the approach are tested
+//! exactly (inside the shape by more than `tolerance_m`).
+
+use super::PlanError;
+use crate::cloud::PointCloud;
+use crate::geometry::Pose;
+use crate::robot::hand::HandModel;
+use crate::robot::HandPose;
+use nalgebra::{Point3, Translation3};
+use parry3d_f64::bounding_volume::BoundingVolume;
+use serde::Serialize;
+
+/// Settings of the seen-surface check.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SeenSurfaceOptions {
+    /// How deep a point may lie inside the open hand (m): the sensor's noise.
+    pub tolerance_m: f64,
+    /// Length of the approach checked behind the grasp (m): the pre-grasp offset.
+    pub approach_m: f64,
+    /// Spacing of the poses sampled along the approach (m).
+    pub step_m: f64,
+    /// Voxel size of the thinned cloud (m).
+    pub voxel_m: f64,
+}
+
+impl Default for SeenSurfaceOptions {
+    /// 3 mm tolerance, a 0.1 m approach in 1 cm steps, 4 mm voxels.
+    fn default() -> Self {
+        SeenSurfaceOptions {
+            tolerance_m: 0.003,
+            approach_m: 0.10,
+            step_m: 0.01,
+            voxel_m: 0.004,
+        }
+    }
+}
+
+/// Where the open hand reaches into the seen surface.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Intrusion {
+    /// The hand link.
+    pub link: String,
+    /// Points inside it by more than the tolerance.
+    pub points: usize,
+    /// The deepest of them (m).
+    pub depth_m: f64,
+    /// How far behind the grasp, along the approach, the hand was (m; 0 = at it).
+    pub behind_grasp_m: f64,
+}
+
+impl std::fmt::Display for Intrusion {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the open hand's {} reaches {:.1} mm into {} seen points, {:.0} mm before the grasp",
+            self.link,
+            self.depth_m * 1e3,
+            self.points,
+            self.behind_grasp_m * 1e3
+        )
+    }
+}
+
+/// The object's seen points and the hand that must not enter them.
+#[derive(Debug, Clone)]
+pub struct SeenSurface<'a> {
+    hand: &'a HandModel,
+    points: Vec<Point3<f64>>,
+    options: SeenSurfaceOptions,
+}
+
+impl<'a> SeenSurface<'a> {
+    /// The seen surface of `cloud` (base frame) for `hand`. Errors: an empty cloud
+    /// or a non-finite or non-positive setting.
+    pub fn new(
+        hand: &'a HandModel,
+        cloud: &PointCloud,
+        options: SeenSurfaceOptions,
+    ) -> Result<SeenSurface<'a>, PlanError> {
+        let check = super::objective::check_value;
+        check("seen surface tolerance_m", options.tolerance_m, false)?;
+        check("seen surface approach_m", options.approach_m, false)?;
+        check("seen surface step_m", options.step_m, true)?;
+        check("seen surface voxel_m", options.voxel_m, true)?;
+        let thinned = crate::cloud::voxel::voxel_downsample(cloud, options.voxel_m);
+        let points: Vec<Point3<f64>> = thinned
+            .points
+            .iter()
+            .map(|p| Point3::new(p.x as f64, p.y as f64, p.z as f64))
+            .filter(|p| p.coords.iter().all(|v| v.is_finite()))
+            .collect();
+        if points.is_empty() {
+            return Err(PlanError::BadValue {
+                what: "seen surface cloud points".into(),
+                value: 0.0,
+                problem: "the object's cloud has no finite point",
+            });
+        }
+        Ok(SeenSurface {
+            hand,
+            points,
+            options,
+        })
+    }
+
+    /// Points kept after thinning.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Always false (a seen surface has points).
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The settings.
+    pub fn options(&self) -> &SeenSurfaceOptions {
+        &self.options
+    }
+
+    /// The first intrusion of the hand open at `spread_rad` into the seen points,
+    /// at the grasp `palm` or along its approach; `None` when it stays clear.
+    pub fn intrusion(&self, palm: &Pose, spread_rad: f64) -> Option<Intrusion> {
+        let o = &self.options;
+        let hand = HandPose {
+            spread_rad,
+            flex_rad: [0.0; 3],
+        };
+        let steps = (o.approach_m / o.step_m).ceil() as usize;
+        let back = |k: usize| -> Pose {
+            let d = (k as f64 * o.step_m).min(o.approach_m);
+            palm * Translation3::new(0.0, 0.0, -d)
+        };
+        let pre = back(steps);
+        for (link, link_pose) in self.hand.link_poses(&hand) {
+            for (link_from_shape, shape) in &link.shapes {
+                let local = link_pose * link_from_shape;
+                // The box swept by the shape along the approach (a translation).
+                let swept = shape
+                    .compute_aabb(&(palm * local))
+                    .merged(&shape.compute_aabb(&(pre * local)));
+                let inside: Vec<&Point3<f64>> = self
+                    .points
+                    .iter()
+                    .filter(|p| swept.contains_local_point(p))
+                    .collect();
+                if inside.is_empty() {
+                    continue;
+                }
+                for k in 0..=steps {
+                    let world_from_shape = back(k) * local;
+                    let mut count = 0;
+                    let mut depth: f64 = 0.0;
+                    for p in &inside {
+                        let q = world_from_shape.inverse_transform_point(p);
+                        let proj = shape.project_local_point(&q, false);
+                        if proj.is_inside {
+                            let d = (proj.point - q).norm();
+                            if d > o.tolerance_m {
+                                count += 1;
+                                depth = depth.max(d);
+                            }
+                        }
+                    }
+                    if count > 0 {
+                        return Some(Intrusion {
+                            link: link.name.clone(),
+                            points: count,
+                            depth_m: depth,
+                            behind_grasp_m: (k as f64 * o.step_m).min(o.approach_m),
+                        });
+                    }
+                }
+            }
+        }
+        None
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::geometry::pose_from_params;
+    use crate::robot::shipped_robot;
+
+    /// Points on a vertical cylinder (radius 4 cm, 10 cm tall) at (0.6, 0, 0).
+    pub(crate) fn cylinder_cloud() -> PointCloud {
+        let mut points = Vec::new();
+        for i in 0..60 {
+            for j in 0..20 {
+                let a = i as f64 / 60.0 * std::f64::consts::TAU;
+                points.push(Point3::new(
+                    (0.6 + 0.04 * a.cos()) as f32,
+                    (0.04 * a.sin()) as f32,
+                    (j as f64 * 0.005) as f32,
+                ));
+            }
+        }
+        PointCloud::from_points(points)
+    }
+
+    #[test]
+    fn a_palm_inside_the_points_intrudes_and_one_beside_them_does_not() {
+        let robot = shipped_robot();
+        let hand = crate::quality::autograsp::tests::hand_of(&robot);
+        let seen =
+            SeenSurface::new(&hand, &cylinder_cloud(), SeenSurfaceOptions::default()).unwrap();
+        // Palm z (approach) along +x toward the cylinder's axis, palm at the axis.
+        let inside = pose_from_params(&[0.6, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
+        let hit = seen
+            .intrusion(&inside, 0.0)
+            .expect("the palm is in the cylinder");
+        assert!(hit.depth_m > 0.003 && hit.points > 0, "{hit:?}");
+        assert!(hit.to_string().contains("mm"), "{hit}");
+        // The same orientation 0.25 m back: clear, and so is its approach.
+        let clear = pose_from_params(&[0.35, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
+        assert_eq!(seen.intrusion(&clear, 0.0), None);
+        // Clear at the grasp but not along the approach: the first palm position
+        // beyond the cylinder where the hand itself is clear, come through it.
+        let at_grasp_only = SeenSurfaceOptions {
+            approach_m: 0.0,
+            ..SeenSurfaceOptions::default()
+        };
+        let only = SeenSurface::new(&hand, &cylinder_cloud(), at_grasp_only).unwrap();
+        let beyond =
+            |x: f64| pose_from_params(&[x, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
+        let clear_x = (0..60)
+            .map(|k| 0.6 + 0.005 * k as f64)
+            .find(|&x| only.intrusion(&beyond(x), 0.0).is_none())
+            .expect("the hand clears the cylinder somewhere beyond it");
+        assert!(clear_x < 0.6 + 0.1, "{clear_x}");
+        let hit = seen
+            .intrusion(&beyond(clear_x), 0.0)
+            .expect("the approach crosses it");
+        assert!(hit.behind_grasp_m > 0.0, "{hit:?}");
+        let empty = PointCloud::from_points(Vec::new());
+        assert!(SeenSurface::new(&hand, &empty, SeenSurfaceOptions::default()).is_err());
+    }
+}
