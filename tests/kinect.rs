@@ -36,7 +36,7 @@ fn kinect_config(dir: &Path) -> PathBuf {
     let text = std::fs::read_to_string(root().join("robot/cell.toml")).unwrap();
     let urdf = root().join("robot/lbr4_bh8_282.urdf");
     let text = text
-        .replace("[camera]\nbackend = \"sim\"", "[camera]\nbackend = \"kinect\"\nframe_timeout_s = 3.0")
+        .replace("[camera]\nbackend = \"sim\"", "[camera]\nbackend = \"kinect\"\nframe_timeout_s = 3.0\nrgb = true")
         .replace("urdf = \"lbr4_bh8_282.urdf\"", &format!("urdf = {:?}", urdf.display().to_string()));
     assert!(text.contains("backend = \"kinect\""), "the camera section moved");
     let path = dir.join("cell.toml");
@@ -243,7 +243,8 @@ fn simulated_mug_recorded_for_fakenect_registers_through_the_kinect_backend_with
     assert!((h.intrinsics.fx - 525.0).abs() < 1e-6 && h.intrinsics.cx == 320.0, "{h:?}");
     let cloud = sample.to_cloud();
     drop(sample);
-    // The trial's raw frame is kept as a recording fakenect can play.
+    // The trial's raw frame (settling frame and kept frame: accelerometer, depth,
+    // colour each) is kept as a recording fakenect can play.
     let kept = graspcell::cell::camera::raw_frame_dir(&run_dir, 1);
     assert_eq!(graspcell::hw::kinect::fakenect::read_index(&kept).unwrap().len(), 6);
     drop(camera);
@@ -278,9 +279,9 @@ fn a_calibration_tilted_by_5_deg_fails_the_gravity_check_with_a_warning() {
     let config = config();
     let truth = pose_from_params(&[0.62, 0.04, config.table.height_m, 0.0, 0.0, 1.05]);
     let recording = record_mug(&dir, &truth, 2);
-    // A calibration result whose mount is the true one turned 5 deg about the
-    // optical axis: the camera "was bumped".
-    let tilted = config.base_from_camera() * pose_from_params(&[0.0, 0.0, 0.0, 0.0, 0.0, 5f64.to_radians()]);
+    // A calibration result whose mount is the true one pitched 5 deg (about the
+    // optical x axis, square to gravity): the camera "was bumped".
+    let tilted = config.base_from_camera() * pose_from_params(&[0.0, 0.0, 0.0, 5f64.to_radians(), 0.0, 0.0]);
     let hand_eye = dir.join("hand_eye.toml");
     HandEyeResult {
         created: "2026-11-25T10:00:00Z".into(),

@@ -270,13 +270,18 @@ extern "C" fn on_depth(_dev: *mut Device, data: *mut c_void, timestamp: u32) {
     }
     // SAFETY: `sink` is the `&mut FrameSink` that `Session::process_events` lent
     // for this call on this thread (cleared before it returns); `data` points to
-    // a depth frame of the mode set at start (11-bit, 640 x 480 u16, which
-    // libfreenect aligns), valid for the duration of the callback.
+    // a depth frame of the mode set at start (11-bit, 640 x 480 native `u16`),
+    // valid for the duration of the callback. It is read as bytes: fakenect's
+    // frame follows the PGM header, so it need not be aligned for `u16`.
     unsafe {
         let sink = &mut *sink;
-        let frame = std::slice::from_raw_parts(data as *const u16, DEPTH_FRAME_BYTES / 2);
+        let frame = std::slice::from_raw_parts(data as *const u8, DEPTH_FRAME_BYTES);
         sink.depth.clear();
-        sink.depth.extend_from_slice(frame);
+        sink.depth.extend(
+            frame
+                .chunks_exact(2)
+                .map(|b| u16::from_ne_bytes([b[0], b[1]])),
+        );
         sink.depth_frames += 1;
         sink.depth_timestamp = timestamp;
     }
