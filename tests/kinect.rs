@@ -14,11 +14,11 @@ use graspcell::config::CellConfig;
 use graspcell::geometry::{pose_error, pose_from_params, Pose, PoseJson};
 use graspcell::hw::kinect::device::{Kinect, KinectOptions};
 use graspcell::hw::kinect::KinectError;
-use graspcell::ipc::{
-    monotonic_now_ns, CameraFault, CameraStatus, CloudSubscriber, CloudTopic, Domain,
-    FailureCause, MessagePublisher, MessageSubscriber, Stage, TrialRequest, TrialResult,
-};
 use graspcell::ipc::stage::poll_until;
+use graspcell::ipc::{
+    monotonic_now_ns, CameraFault, CameraStatus, CloudSubscriber, CloudTopic, Domain, FailureCause,
+    MessagePublisher, MessageSubscriber, Stage, TrialRequest, TrialResult,
+};
 use graspcell::register::{perceive, ModelSet, RegisterParams, RegistrationStatus};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -36,9 +36,18 @@ fn kinect_config(dir: &Path) -> PathBuf {
     let text = std::fs::read_to_string(root().join("robot/cell.toml")).unwrap();
     let urdf = root().join("robot/lbr4_bh8_282.urdf");
     let text = text
-        .replace("[camera]\nbackend = \"sim\"", "[camera]\nbackend = \"kinect\"\nframe_timeout_s = 3.0\nrgb = true")
-        .replace("urdf = \"lbr4_bh8_282.urdf\"", &format!("urdf = {:?}", urdf.display().to_string()));
-    assert!(text.contains("backend = \"kinect\""), "the camera section moved");
+        .replace(
+            "[camera]\nbackend = \"sim\"",
+            "[camera]\nbackend = \"kinect\"\nframe_timeout_s = 3.0\nrgb = true",
+        )
+        .replace(
+            "urdf = \"lbr4_bh8_282.urdf\"",
+            &format!("urdf = {:?}", urdf.display().to_string()),
+        );
+    assert!(
+        text.contains("backend = \"kinect\""),
+        "the camera section moved"
+    );
     let path = dir.join("cell.toml");
     std::fs::write(&path, text).unwrap();
     CellConfig::load(&path).unwrap();
@@ -80,7 +89,11 @@ fn record_mug(dir: &Path, base_from_object: &Pose, frames: usize) -> PathBuf {
     assert_eq!(report["backend"], "sim");
     assert_eq!(report["focal_px"].as_f64().unwrap().round(), 525.0);
     let index = graspcell::hw::kinect::fakenect::read_index(&out).unwrap();
-    assert_eq!(index.len(), 3 * frames.parse::<usize>().unwrap(), "a, d, r per frame");
+    assert_eq!(
+        index.len(),
+        3 * frames.parse::<usize>().unwrap(),
+        "a, d, r per frame"
+    );
     out
 }
 
@@ -109,8 +122,8 @@ impl Process {
         };
         let stderr = run_dir.join(format!("{stage}.stderr"));
         std::fs::create_dir_all(run_dir).unwrap();
-        let bin = Path::new(env!("CARGO_BIN_EXE_cell-camera"))
-            .with_file_name(format!("cell-{stage}"));
+        let bin =
+            Path::new(env!("CARGO_BIN_EXE_cell-camera")).with_file_name(format!("cell-{stage}"));
         let mut command = Command::new(bin);
         command
             .current_dir(root())
@@ -158,7 +171,10 @@ fn fakenect_camera(
         domain,
         run_dir,
         &["--hand-eye".into(), hand_eye.display().to_string()],
-        &[("LD_LIBRARY_PATH", Path::new(FAKENECT_DIR)), ("FAKENECT_PATH", recording)],
+        &[
+            ("LD_LIBRARY_PATH", Path::new(FAKENECT_DIR)),
+            ("FAKENECT_PATH", recording),
+        ],
     )
 }
 
@@ -196,7 +212,8 @@ impl Operator {
     }
 
     fn request(&self, trial_id: u64) {
-        let r = TrialRequest::new(trial_id, monotonic_now_ns(), "mug", "handle", "laplace").unwrap();
+        let r =
+            TrialRequest::new(trial_id, monotonic_now_ns(), "mug", "handle", "laplace").unwrap();
         self.requests.send(&r).unwrap();
     }
 
@@ -209,7 +226,8 @@ impl Operator {
 }
 
 #[test]
-fn simulated_mug_recorded_for_fakenect_registers_through_the_kinect_backend_within_5_mm_and_5_deg() {
+fn simulated_mug_recorded_for_fakenect_registers_through_the_kinect_backend_within_5_mm_and_5_deg()
+{
     let dir = temp_dir("kinect", "e2e");
     let config = config();
     // Handle visible: turned 60 deg towards the camera (as the perception tests).
@@ -228,7 +246,12 @@ fn simulated_mug_recorded_for_fakenect_registers_through_the_kinect_backend_with
     operator.wait_for(1, &camera);
     operator.request(1);
     let status = operator.status(&camera);
-    assert_eq!(status.fault().unwrap(), CameraFault::None, "{}", camera.stderr());
+    assert_eq!(
+        status.fault().unwrap(),
+        CameraFault::None,
+        "{}",
+        camera.stderr()
+    );
     // The recording's accelerometer agrees with the mount: the check passes.
     assert!(status.gravity_angle_rad.to_degrees() < 0.5, "{status:?}");
     assert_eq!(status.gravity_warning, 0);
@@ -240,13 +263,21 @@ fn simulated_mug_recorded_for_fakenect_registers_through_the_kinect_backend_with
     sample.validate().unwrap();
     let h = *sample.header();
     assert_eq!((h.trial_id, h.width, h.height), (1, 640, 480));
-    assert!((h.intrinsics.fx - 525.0).abs() < 1e-6 && h.intrinsics.cx == 320.0, "{h:?}");
+    assert!(
+        (h.intrinsics.fx - 525.0).abs() < 1e-6 && h.intrinsics.cx == 320.0,
+        "{h:?}"
+    );
     let cloud = sample.to_cloud();
     drop(sample);
     // The trial's raw frame (settling frame and kept frame: accelerometer, depth,
     // colour each) is kept as a recording fakenect can play.
     let kept = graspcell::cell::camera::raw_frame_dir(&run_dir, 1);
-    assert_eq!(graspcell::hw::kinect::fakenect::read_index(&kept).unwrap().len(), 6);
+    assert_eq!(
+        graspcell::hw::kinect::fakenect::read_index(&kept)
+            .unwrap()
+            .len(),
+        6
+    );
     drop(camera);
 
     let db = CategoryDb::load(&root().join("db/mug")).unwrap();
@@ -260,10 +291,18 @@ fn simulated_mug_recorded_for_fakenect_registers_through_the_kinect_backend_with
         1,
     )
     .unwrap();
-    let own = p.registrations.iter().find(|r| r.model == "mug_002").unwrap();
+    let own = p
+        .registrations
+        .iter()
+        .find(|r| r.model == "mug_002")
+        .unwrap();
     assert_eq!(own.status, RegistrationStatus::Ok);
     let (dp, dr) = pose_error(&own.target_from_model, &truth);
-    eprintln!("kinect + fakenect: mug_002 off by {:.2} mm, {:.2} deg", dp * 1e3, dr.to_degrees());
+    eprintln!(
+        "kinect + fakenect: mug_002 off by {:.2} mm, {:.2} deg",
+        dp * 1e3,
+        dr.to_degrees()
+    );
     assert!(
         dp < 0.005 && dr < 5f64.to_radians(),
         "off by {:.1} mm, {:.1} deg",
@@ -281,7 +320,8 @@ fn a_calibration_tilted_by_5_deg_fails_the_gravity_check_with_a_warning() {
     let recording = record_mug(&dir, &truth, 2);
     // A calibration result whose mount is the true one pitched 5 deg (about the
     // optical x axis, square to gravity): the camera "was bumped".
-    let tilted = config.base_from_camera() * pose_from_params(&[0.0, 0.0, 0.0, 5f64.to_radians(), 0.0, 0.0]);
+    let tilted =
+        config.base_from_camera() * pose_from_params(&[0.0, 0.0, 0.0, 5f64.to_radians(), 0.0, 0.0]);
     let hand_eye = dir.join("hand_eye.toml");
     HandEyeResult {
         created: "2026-11-25T10:00:00Z".into(),
@@ -302,17 +342,30 @@ fn a_calibration_tilted_by_5_deg_fails_the_gravity_check_with_a_warning() {
     .save(&hand_eye)
     .unwrap();
     let domain = Domain::temporary("kinect-gravity").unwrap();
-    let camera = fakenect_camera(&kinect_config(&dir), &domain, &dir.join("run"), &recording, &hand_eye);
+    let camera = fakenect_camera(
+        &kinect_config(&dir),
+        &domain,
+        &dir.join("run"),
+        &recording,
+        &hand_eye,
+    );
     let operator = Operator::new(&domain);
     operator.wait_for(1, &camera);
     operator.request(1);
     let status = operator.status(&camera);
-    assert_eq!(status.fault().unwrap(), CameraFault::None, "{}", camera.stderr());
+    assert_eq!(
+        status.fault().unwrap(),
+        CameraFault::None,
+        "{}",
+        camera.stderr()
+    );
     let angle_deg = status.gravity_angle_rad.to_degrees();
     assert!((angle_deg - 5.0).abs() < 0.3, "{status:?}");
     assert_eq!(status.gravity_warning, 1);
     let seen = poll_until(Duration::from_secs(10), || {
-        Ok(camera.stderr().contains("gravity check: the camera's accelerometer and the calibrated mount disagree"))
+        Ok(camera.stderr().contains(
+            "gravity check: the camera's accelerometer and the calibrated mount disagree",
+        ))
     })
     .unwrap();
     assert!(seen, "no warning: {}", camera.stderr());
@@ -332,17 +385,34 @@ fn without_a_kinect_the_backend_names_the_usb_and_udev_checks() {
     .unwrap_err();
     assert!(matches!(err, KinectError::NoDevice { index: 0 }), "{err}");
     let text = err.to_string();
-    assert!(text.contains("udev rule") && text.contains("045e:02ae") && text.contains("lsusb"), "{text}");
+    assert!(
+        text.contains("udev rule") && text.contains("045e:02ae") && text.contains("lsusb"),
+        "{text}"
+    );
 
     // The stage says so at start, stays up, and fails each trial with the fault.
     let dir = temp_dir("kinect", "nodevice");
     let domain = Domain::temporary("kinect-nodevice").unwrap();
-    let camera = Process::start("camera", &kinect_config(&dir), &domain, &dir.join("run"), &[], &[]);
+    let camera = Process::start(
+        "camera",
+        &kinect_config(&dir),
+        &domain,
+        &dir.join("run"),
+        &[],
+        &[],
+    );
     let operator = Operator::new(&domain);
     operator.wait_for(1, &camera);
-    assert!(camera.stderr().contains("no Kinect found"), "{}", camera.stderr());
+    assert!(
+        camera.stderr().contains("no Kinect found"),
+        "{}",
+        camera.stderr()
+    );
     operator.request(1);
-    assert_eq!(operator.status(&camera).fault().unwrap(), CameraFault::NoDevice);
+    assert_eq!(
+        operator.status(&camera).fault().unwrap(),
+        CameraFault::NoDevice
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -356,30 +426,53 @@ fn a_recording_cut_short_fails_the_trial_with_cause_camera_and_the_stage_recover
     let config_path = kinect_config(&dir);
     let domain = Domain::temporary("kinect-cut").unwrap();
     let run_dir = dir.join("run");
-    let camera = fakenect_camera(&config_path, &domain, &run_dir, &recording, &dir.join("none.toml"));
+    let camera = fakenect_camera(
+        &config_path,
+        &domain,
+        &run_dir,
+        &recording,
+        &dir.join("none.toml"),
+    );
     let log_path = run_dir.join("trials.sqlite");
     let log = Process::start(
         "log",
         &config_path,
         &domain,
         &run_dir,
-        &["--log".into(), log_path.display().to_string(), "--trial-timeout-s".into(), "60".into()],
+        &[
+            "--log".into(),
+            log_path.display().to_string(),
+            "--trial-timeout-s".into(),
+            "60".into(),
+        ],
         &[],
     );
     let operator = Operator::new(&domain);
     operator.wait_for(2, &camera);
-    let up = poll_until(Duration::from_secs(60), || Ok(operator.results.publisher_peers()?.alive >= 1)).unwrap();
+    let up = poll_until(Duration::from_secs(60), || {
+        Ok(operator.results.publisher_peers()?.alive >= 1)
+    })
+    .unwrap();
     assert!(up, "log: {}", log.stderr());
 
     // 1: the recording's one snapshot.
     operator.request(1);
     assert_eq!(operator.status(&camera).fault().unwrap(), CameraFault::None);
-    let first = operator.clouds.receive_timeout(Duration::from_secs(30)).unwrap().expect("cloud 1");
+    let first = operator
+        .clouds
+        .receive_timeout(Duration::from_secs(30))
+        .unwrap()
+        .expect("cloud 1");
     assert_eq!(first.header().trial_id, 1);
     drop(first);
     // 2: the recording has ended mid-run: the device vanished.
     operator.request(2);
-    assert_eq!(operator.status(&camera).fault().unwrap(), CameraFault::Vanished, "{}", camera.stderr());
+    assert_eq!(
+        operator.status(&camera).fault().unwrap(),
+        CameraFault::Vanished,
+        "{}",
+        camera.stderr()
+    );
     let result = loop {
         let r = operator
             .results
@@ -394,17 +487,37 @@ fn a_recording_cut_short_fails_the_trial_with_cause_camera_and_the_stage_recover
     // 3: the device "returns" (fakenect plays the recording again from its
     // start once the backend reopens it): the stage recovered.
     operator.request(3);
-    assert_eq!(operator.status(&camera).fault().unwrap(), CameraFault::None, "{}", camera.stderr());
-    let again = operator.clouds.receive_timeout(Duration::from_secs(30)).unwrap().expect("cloud 3");
+    assert_eq!(
+        operator.status(&camera).fault().unwrap(),
+        CameraFault::None,
+        "{}",
+        camera.stderr()
+    );
+    let again = operator
+        .clouds
+        .receive_timeout(Duration::from_secs(30))
+        .unwrap()
+        .expect("cloud 3");
     assert_eq!(again.header().trial_id, 3);
-    assert!(again.to_cloud().points.iter().filter(|p| p.z.is_finite()).count() > 100_000);
+    assert!(
+        again
+            .to_cloud()
+            .points
+            .iter()
+            .filter(|p| p.z.is_finite())
+            .count()
+            > 100_000
+    );
     drop(again);
     drop(log);
     // The trial log names the camera's fault.
-    let trials = graspcell::trial::TrialLog::open(&log_path).unwrap().trials().unwrap();
-    let noted = trials.iter().any(|t| {
-        format!("{t:?}").contains("camera: the device vanished mid-run")
-    });
+    let trials = graspcell::trial::TrialLog::open(&log_path)
+        .unwrap()
+        .trials()
+        .unwrap();
+    let noted = trials
+        .iter()
+        .any(|t| format!("{t:?}").contains("camera: the device vanished mid-run"));
     assert!(noted, "{trials:?}");
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -103,12 +103,13 @@ impl KinectBackend {
     /// Opens the device (at start, or again after a fault).
     fn open(&mut self) -> Result<&mut crate::hw::kinect::device::Kinect, CameraFailure> {
         if self.device.is_none() {
-            let device = crate::hw::kinect::device::Kinect::open(self.options.clone()).map_err(|e| {
-                CameraFailure {
-                    fault: Self::fault_of(&e),
-                    message: e.to_string(),
-                }
-            })?;
+            let device =
+                crate::hw::kinect::device::Kinect::open(self.options.clone()).map_err(|e| {
+                    CameraFailure {
+                        fault: Self::fault_of(&e),
+                        message: e.to_string(),
+                    }
+                })?;
             tracing::info!("Kinect open");
             self.device = Some(device);
         }
@@ -275,7 +276,8 @@ impl CameraBackend {
                 })
             }
             CameraBackend::Replay { dir, served } => {
-                let file = replay_file(dir, trial_id, *served).map_err(|e| failed(e.to_string()))?;
+                let file =
+                    replay_file(dir, trial_id, *served).map_err(|e| failed(e.to_string()))?;
                 *served += 1;
                 let cloud = crate::cloud::io::read_cloud(&file)
                     .map_err(|e| failed(format!("replay camera: {e}")))?;
@@ -359,9 +361,14 @@ pub fn run(
     match backend.gravity_now(config) {
         Some(g) => {
             let check = check_gravity(config, &mount, &g);
-            tracing::info!(angle_deg = check.angle_rad.to_degrees(), "gravity check at start");
+            tracing::info!(
+                angle_deg = check.angle_rad.to_degrees(),
+                "gravity check at start"
+            );
         }
-        None => tracing::info!("no accelerometer reading at start: the gravity check runs with each snapshot"),
+        None => tracing::info!(
+            "no accelerometer reading at start: the gravity check runs with each snapshot"
+        ),
     }
     let stage = Stage::start(domain, "camera")?;
     let clouds = stage.cloud_publisher(CloudTopic::Camera)?;

@@ -19,9 +19,9 @@ use super::{span_ms, stop_requested, CellError, TICK};
 use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
 use crate::ipc::{
-    monotonic_now_ns, wait_any, CameraFault, CameraStatus, CloudTopic, Domain, ExecutionStatus, FailureCause as IpcCause,
-    FitStatus, Fits, Grade as IpcGrade, GraspPlan, Phase, Stage, StageStatus, Timings,
-    TrialRequest, TrialResult, Wakeable,
+    monotonic_now_ns, wait_any, CameraFault, CameraStatus, CloudTopic, Domain, ExecutionStatus,
+    FailureCause as IpcCause, FitStatus, Fits, Grade as IpcGrade, GraspPlan, Phase, Stage,
+    StageStatus, Timings, TrialRequest, TrialResult, Wakeable,
 };
 use crate::robot::Robot;
 use crate::sim::observer::{Attempt, Observation, Observer};
@@ -336,13 +336,16 @@ impl Logger {
             ),
         };
         let raw_frame = super::camera::raw_frame_dir(&self.options.run_dir, trial_id);
-        let gravity = trial.camera.filter(|c| c.gravity_angle_rad.is_finite()).map(|c| {
-            json!({
-                "camera_m_s2": c.gravity_camera_m_s2,
-                "angle_deg": c.gravity_angle_rad.to_degrees(),
-                "warning": c.gravity_warning != 0,
-            })
-        });
+        let gravity = trial
+            .camera
+            .filter(|c| c.gravity_angle_rad.is_finite())
+            .map(|c| {
+                json!({
+                    "camera_m_s2": c.gravity_camera_m_s2,
+                    "angle_deg": c.gravity_angle_rad.to_degrees(),
+                    "warning": c.gravity_warning != 0,
+                })
+            });
         let planned = trial
             .plan
             .filter(|p| matches!(p.failure(), Ok(IpcCause::None)))

@@ -4,14 +4,14 @@
 
 use super::bench::{cpu_ms, load_average, median, percentile, RenderBenchArgs};
 use super::objects::write_atomically;
+use crate::cell::camera::{CameraBackend, Snapshot};
 use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
-use crate::mesh::procedural::{generate, Category};
-use crate::cell::camera::{CameraBackend, Snapshot};
 use crate::hw::kinect::convert::{cloud_to_raw, depth_to_cloud, DepthEncoding};
 use crate::hw::kinect::fakenect::{FakenectWriter, RawFrame};
 use crate::hw::kinect::gravity::{expected_gravity_camera, AccelCounts};
 use crate::hw::kinect::registration::{Registration, FRAME_HEIGHT, FRAME_WIDTH};
+use crate::mesh::procedural::{generate, Category};
 use crate::sim::camera::{DepthCamera, DepthFrame, Return, Surface};
 use crate::sim::scene::{load_scene, Scene, TableBox};
 use anyhow::Context;
@@ -557,11 +557,14 @@ fn snapshot_frame(config: &CellConfig, snapshot: Snapshot) -> RawFrame {
     let (w, h) = (config.camera.width_px, config.camera.height_px);
     let registration = Registration::with_focal(snapshot.intrinsics.fx);
     let (depth_raw, _) = cloud_to_raw(&snapshot.cloud, &registration, w, h);
-    let rgb = (snapshot.cloud.len() == w as usize * h as usize).then(|| depth_grey(&snapshot.cloud));
+    let rgb =
+        (snapshot.cloud.len() == w as usize * h as usize).then(|| depth_grey(&snapshot.cloud));
     RawFrame {
         depth_raw,
         rgb,
-        accel: snapshot.gravity_camera_m_s2.map(|g| AccelCounts::at_rest(&g)),
+        accel: snapshot
+            .gravity_camera_m_s2
+            .map(|g| AccelCounts::at_rest(&g)),
         registration,
         width: w,
         height: h,
@@ -713,7 +716,9 @@ pub fn bench_camera(config_path: &Path, args: CameraBenchArgs) -> anyhow::Result
         nalgebra::Vector3::new(table.center_xy_m[0], table.center_xy_m[1], table.height_m),
         nalgebra::Vector3::z() * 1.2,
     );
-    scene.add("mug", mug, base_from_mug).context("bench scene")?;
+    scene
+        .add("mug", mug, base_from_mug)
+        .context("bench scene")?;
     let dir = std::env::temp_dir().join(format!("gc-bench-camera-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir)?;
@@ -724,14 +729,21 @@ pub fn bench_camera(config_path: &Path, args: CameraBenchArgs) -> anyhow::Result
     let table_build_ms = started.elapsed().as_secs_f64() * 1e3;
     let encoding = DepthEncoding::Disparity11 { table_m };
     let k = frame.registration.intrinsics(w, h);
-    let range = [config.camera.min_range_m as f32, config.camera.max_range_m as f32];
+    let range = [
+        config.camera.min_range_m as f32,
+        config.camera.max_range_m as f32,
+    ];
     let mut times = Vec::with_capacity(args.repeats);
     let mut valid = 0;
     for _ in 0..args.repeats {
         let started = Instant::now();
         let cloud = depth_to_cloud(&frame.depth_raw, w, &encoding, &k, range);
         times.push(started.elapsed().as_secs_f64() * 1e3);
-        valid = std::hint::black_box(&cloud).points.iter().filter(|p| p.z.is_finite()).count();
+        valid = std::hint::black_box(&cloud)
+            .points
+            .iter()
+            .filter(|p| p.z.is_finite())
+            .count();
     }
     let conversion_ms_median = median(&mut times);
     let (fakenect, fakenect_skipped) = match fakenect_rate(&frame, &dir, args.frames, range) {
@@ -769,10 +781,15 @@ fn fakenect_rate(
     use crate::hw::kinect::device::{Kinect, KinectOptions};
     let library = PathBuf::from(FAKENECT_LIBRARY);
     if !library.exists() {
-        return Err(format!("{}: missing (apt-get install libfreenect-dev)", library.display()));
+        return Err(format!(
+            "{}: missing (apt-get install libfreenect-dev)",
+            library.display()
+        ));
     }
     let recording = dir.join("recording");
-    frame.write_recording(&recording, frames).map_err(|e| e.to_string())?;
+    frame
+        .write_recording(&recording, frames)
+        .map_err(|e| e.to_string())?;
     // fakenect reads FAKENECT_PATH when it first plays; nothing else in this
     // process reads the environment concurrently.
     std::env::set_var("FAKENECT_PATH", &recording);
@@ -812,5 +829,8 @@ fn fakenect_rate(
     _frames: usize,
     _range: [f32; 2],
 ) -> Result<FakenectRate, String> {
-    Err("built without the kinect feature (cargo build --release --features kinect --bin cell)".into())
+    Err(
+        "built without the kinect feature (cargo build --release --features kinect --bin cell)"
+            .into(),
+    )
 }

@@ -85,7 +85,14 @@ pub fn cloud_to_raw(
             .enumerate()
             .map(|(i, p)| {
                 let raw = registration.raw_from_depth_m(f64::from(p.z));
-                (raw, if raw == DEPTH_NO_VALUE { u32::MAX } else { i as u32 })
+                (
+                    raw,
+                    if raw == DEPTH_NO_VALUE {
+                        u32::MAX
+                    } else {
+                        i as u32
+                    },
+                )
             })
             .unzip();
     }

@@ -94,9 +94,10 @@ impl Kinect {
                 timeout_s: options.frame_timeout_s,
             });
         }
-        let lib = Library::open(options.library.as_deref()).map_err(|e| driver_error(e, options.index))?;
-        let mut session =
-            Session::open(lib, options.index, options.rgb).map_err(|e| driver_error(e, options.index))?;
+        let lib = Library::open(options.library.as_deref())
+            .map_err(|e| driver_error(e, options.index))?;
+        let mut session = Session::open(lib, options.index, options.rgb)
+            .map_err(|e| driver_error(e, options.index))?;
         let (registration, source) = match session.registration() {
             Some(r) => (
                 Registration {
@@ -118,14 +119,22 @@ impl Kinect {
                 None => (Registration::nominal(), RegistrationSource::Nominal),
             },
         };
-        registration.validate().map_err(|problem| KinectError::Recording {
-            path: "device registration".into(),
-            problem,
-        })?;
+        registration
+            .validate()
+            .map_err(|problem| KinectError::Recording {
+                path: "device registration".into(),
+                problem,
+            })?;
         if source == RegistrationSource::Nominal {
-            tracing::warn!("the Kinect's registration data is unavailable: nominal Kinect v1 depth model");
+            tracing::warn!(
+                "the Kinect's registration data is unavailable: nominal Kinect v1 depth model"
+            );
         }
-        tracing::info!(?source, focal_px = registration.intrinsics(FRAME_WIDTH, FRAME_HEIGHT).focal_px, "Kinect open");
+        tracing::info!(
+            ?source,
+            focal_px = registration.intrinsics(FRAME_WIDTH, FRAME_HEIGHT).focal_px,
+            "Kinect open"
+        );
         Ok(Kinect {
             session,
             options,

@@ -166,7 +166,13 @@ impl FakenectWriter {
     }
 }
 
-fn check_len(what: &'static str, len: usize, width: u32, height: u32, per_pixel: usize) -> Result<(), KinectError> {
+fn check_len(
+    what: &'static str,
+    len: usize,
+    width: u32,
+    height: u32,
+    per_pixel: usize,
+) -> Result<(), KinectError> {
     let expected = width as usize * height as usize * per_pixel;
     if len != expected {
         return Err(KinectError::FrameSize {
@@ -222,7 +228,12 @@ impl RawFrame {
     /// Appends the frame to a recording at `time_s` (accelerometer first, so
     /// fakenect's state holds it when the depth frame is delivered, then depth,
     /// then colour), with `timestamp` as the device timestamp.
-    pub fn append(&self, writer: &mut FakenectWriter, time_s: f64, timestamp: u32) -> Result<(), KinectError> {
+    pub fn append(
+        &self,
+        writer: &mut FakenectWriter,
+        time_s: f64,
+        timestamp: u32,
+    ) -> Result<(), KinectError> {
         if let Some(a) = self.accel {
             writer.accel(time_s, timestamp, a)?;
         }
@@ -308,7 +319,10 @@ pub fn read_index(dir: &Path) -> Result<Vec<IndexEntry>, KinectError> {
                 problem: format!("line {}: {line:?}: {problem}", i + 1),
             };
             let mut parts = line.splitn(3, '-');
-            let kind = parts.next().and_then(|k| k.chars().next()).ok_or_else(|| bad("no kind"))?;
+            let kind = parts
+                .next()
+                .and_then(|k| k.chars().next())
+                .ok_or_else(|| bad("no kind"))?;
             let time_s: f64 = parts
                 .next()
                 .and_then(|t| t.parse().ok())
@@ -346,7 +360,11 @@ mod tests {
         let raw: Vec<u16> = (0..6).map(|i| 600 + i).collect();
         w.depth(1.5, 10, 3, 2, &raw).unwrap();
         w.rgb(1.5, 10, 3, 2, &[7u8; 18]).unwrap();
-        let counts = AccelCounts { x: -3, y: 800, z: 120 };
+        let counts = AccelCounts {
+            x: -3,
+            y: 800,
+            z: 120,
+        };
         w.accel(1.5, 10, counts).unwrap();
         assert!(w.depth(1.6, 11, 3, 3, &raw).is_err());
         w.registration(&Registration::with_focal(525.0)).unwrap();
@@ -358,7 +376,10 @@ mod tests {
         let depth = std::fs::read(dir.join(&index[0].file)).unwrap();
         let header = b"P5 3 2 65535\n";
         assert_eq!(&depth[..header.len()], header);
-        assert_eq!(&depth[header.len()..header.len() + 2], &600u16.to_le_bytes());
+        assert_eq!(
+            &depth[header.len()..header.len() + 2],
+            &600u16.to_le_bytes()
+        );
         let accel = std::fs::read(dir.join(&index[2].file)).unwrap();
         assert_eq!(parse_accel_record(&accel), Some(counts));
         assert_eq!(

@@ -232,7 +232,6 @@ impl Library {
         };
         Ok(Library { handle, api })
     }
-
 }
 
 impl Drop for Library {
@@ -312,7 +311,9 @@ pub struct Session {
 
 impl std::fmt::Debug for Session {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Session").field("video", &self.video).finish()
+        f.debug_struct("Session")
+            .field("video", &self.video)
+            .finish()
     }
 }
 
@@ -407,7 +408,10 @@ impl Session {
         // SAFETY: live device; libfreenect returns a pointer into the device
         // (fakenect: a static) valid until the next update, read at once.
         unsafe {
-            check("freenect_update_tilt_state", (self.lib.api.update_tilt_state)(self.dev))?;
+            check(
+                "freenect_update_tilt_state",
+                (self.lib.api.update_tilt_state)(self.dev),
+            )?;
             let state = (self.lib.api.get_tilt_state)(self.dev);
             if state.is_null() {
                 return Err(FfiError::Call {
@@ -422,7 +426,10 @@ impl Session {
 
     /// The device's registration data, when the library reports it.
     pub fn registration(&mut self) -> Option<DeviceRegistration> {
-        let (copy, destroy) = (self.lib.api.copy_registration?, self.lib.api.destroy_registration?);
+        let (copy, destroy) = (
+            self.lib.api.copy_registration?,
+            self.lib.api.destroy_registration?,
+        );
         // SAFETY: live device; the copy owns three tables that
         // freenect_destroy_registration frees, after the plain values are read.
         unsafe {

@@ -129,7 +129,14 @@ mod tests {
     #[test]
     fn a_level_kinect_reads_one_g_up_and_gravity_is_optical_plus_y() {
         // Looking horizontally: optical z along base x, y down = base -z.
-        let level = pose_from_params(&[0.0, 0.0, 1.0, -std::f64::consts::FRAC_PI_2, 0.0, -std::f64::consts::FRAC_PI_2]);
+        let level = pose_from_params(&[
+            0.0,
+            0.0,
+            1.0,
+            -std::f64::consts::FRAC_PI_2,
+            0.0,
+            -std::f64::consts::FRAC_PI_2,
+        ]);
         let g = expected_gravity_camera(&level);
         assert!((g - Vector3::y()).norm() < 1e-9, "{g:?}");
         let counts = AccelCounts::at_rest(&g);
@@ -150,7 +157,10 @@ mod tests {
         let ok = GravityCheck::new(&measured, &mount, 2f64.to_radians());
         assert!(ok.angle_rad.to_degrees() < 0.2 && !ok.exceeded(), "{ok:?}");
         let bad = GravityCheck::new(&measured, &tilted, 2f64.to_radians());
-        assert!((bad.angle_rad.to_degrees() - 5.0).abs() < 0.2 && bad.exceeded(), "{bad:?}");
+        assert!(
+            (bad.angle_rad.to_degrees() - 5.0).abs() < 0.2 && bad.exceeded(),
+            "{bad:?}"
+        );
         assert!(bad.warning().contains("stale"));
     }
 }

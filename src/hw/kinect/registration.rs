@@ -158,9 +158,11 @@ impl Registration {
         }
         let z = &self.zero_plane;
         // z_mm = 10 D b / (b - m)  =>  m = b (1 - 10 D / z_mm).
-        let metric = z.dcmos_emitter_dist * (1.0 - SHIFT_SCALE * z.reference_distance / (depth_m * 1e3));
+        let metric =
+            z.dcmos_emitter_dist * (1.0 - SHIFT_SCALE * z.reference_distance / (depth_m * 1e3));
         let x = metric / z.reference_pixel_size;
-        let raw = PARAMETER_COEFFICIENT * (x + CONST_OFFSET) + PARAMETER_COEFFICIENT * self.const_shift;
+        let raw =
+            PARAMETER_COEFFICIENT * (x + CONST_OFFSET) + PARAMETER_COEFFICIENT * self.const_shift;
         let raw = raw.round();
         if (0.0..f64::from(DEPTH_NO_VALUE)).contains(&raw) {
             raw as u16
@@ -197,7 +199,10 @@ mod tests {
             assert_ne!(raw, DEPTH_NO_VALUE, "{z}");
             let back = r.depth_m(raw);
             let step = r.depth_m(raw + 1) - r.depth_m(raw);
-            assert!(step > 0.0 && (back - z).abs() <= 0.5 * step + 1e-9, "{z} {back} {step}");
+            assert!(
+                step > 0.0 && (back - z).abs() <= 0.5 * step + 1e-9,
+                "{z} {back} {step}"
+            );
         }
         assert_eq!(r.raw_from_depth_m(f64::NAN), DEPTH_NO_VALUE);
         assert_eq!(r.raw_from_depth_m(-1.0), DEPTH_NO_VALUE);
