@@ -170,7 +170,7 @@ pub enum CameraBackend {
     },
     /// A Kinect v1 through libfreenect (or fakenect).
     #[cfg(feature = "kinect")]
-    Kinect(KinectBackend),
+    Kinect(Box<KinectBackend>),
 }
 
 fn config_intrinsics(config: &CellConfig) -> Intrinsics {
@@ -218,7 +218,7 @@ impl CameraBackend {
                     }
                     Err(e) => tracing::error!("kinect: {}", e.message),
                 }
-                Ok(CameraBackend::Kinect(backend))
+                Ok(CameraBackend::Kinect(Box::new(backend)))
             }
             other => Err(CellError::Backend {
                 field: "camera.backend",

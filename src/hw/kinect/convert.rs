@@ -30,7 +30,7 @@ pub fn depth_to_cloud(
     range_m: [f32; 2],
 ) -> PointCloud {
     let w = width as usize;
-    let height = if w == 0 { 0 } else { depth.len() / w };
+    let height = depth.len().checked_div(w).unwrap_or(0);
     let inv_f = (1.0 / intrinsics.focal_px) as f32;
     let (cx, cy) = (intrinsics.cx_px as f32, intrinsics.cy_px as f32);
     let missing = Point3::new(f32::NAN, f32::NAN, f32::NAN);

@@ -154,6 +154,20 @@ impl std::fmt::Debug for Library {
     }
 }
 
+/// A function pointer of type `F` from a symbol's address.
+///
+/// # Safety
+/// `p` must be the address of a function whose C signature `F` restates.
+unsafe fn fn_from_symbol<F: Copy>(p: *mut c_void) -> F {
+    assert_eq!(
+        std::mem::size_of::<F>(),
+        std::mem::size_of::<*mut c_void>(),
+        "a function pointer type"
+    );
+    // SAFETY: same size (checked); the caller vouches for the signature.
+    unsafe { std::mem::transmute_copy(&p) }
+}
+
 fn dl_error() -> String {
     // SAFETY: dlerror returns NULL or a NUL-terminated string valid until the next
     // dl* call on this thread; it is copied at once.
@@ -197,13 +211,13 @@ impl Library {
                 };
                 // SAFETY: the symbol is the libfreenect 0.5 function of this name,
                 // whose C signature (libfreenect.h) the field's type restates.
-                unsafe { std::mem::transmute::<*mut c_void, _>(p) }
+                unsafe { fn_from_symbol(p) }
             }};
         }
         macro_rules! optional {
             ($name:literal) => {
                 // SAFETY: as for `required!`.
-                lookup($name).map(|p| unsafe { std::mem::transmute::<*mut c_void, _>(p) })
+                lookup($name).map(|p| unsafe { fn_from_symbol(p) })
             };
         }
         let api = Api {

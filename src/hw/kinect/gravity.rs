@@ -107,7 +107,11 @@ impl GravityCheck {
     /// True when the angle exceeds the limit: the camera was bumped or the
     /// calibration is stale.
     pub fn exceeded(&self) -> bool {
-        !(self.angle_rad <= self.max_rad)
+        // NaN (no direction) counts as exceeded.
+        !matches!(
+            self.angle_rad.partial_cmp(&self.max_rad),
+            Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
+        )
     }
 
     /// The warning to log when [`GravityCheck::exceeded`].
@@ -150,7 +154,7 @@ mod tests {
 
     #[test]
     fn a_mount_tilted_by_five_degrees_exceeds_two() {
-        let mount = pose_from_params(&[1.25, 0.0, 0.8, -2.42787, 0.0, 1.570796]);
+        let mount = pose_from_params(&[1.25, 0.0, 0.8, -2.42787, 0.0, std::f64::consts::FRAC_PI_2]);
         let counts = AccelCounts::at_rest(&expected_gravity_camera(&mount));
         let tilted = mount * pose_from_params(&[0.0, 0.0, 0.0, 5f64.to_radians(), 0.0, 0.0]);
         let measured = counts.gravity_camera_m_s2().unwrap();
