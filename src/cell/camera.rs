@@ -234,15 +234,12 @@ impl CameraBackend {
 
     /// The gravity the camera measures now, without taking a snapshot, when it
     /// can tell (the start check).
-    pub fn gravity_now(&mut self, config: &CellConfig) -> Option<Vector3<f64>> {
+    pub fn gravity_now(&mut self) -> Option<Vector3<f64>> {
         match self {
             CameraBackend::Sim { camera } => Some(sim_gravity(&camera.base_from_camera)),
             CameraBackend::Replay { .. } => None,
             #[cfg(feature = "kinect")]
-            CameraBackend::Kinect(k) => {
-                let _ = config;
-                k.device.as_mut()?.accelerometer()?.gravity_camera_m_s2()
-            }
+            CameraBackend::Kinect(k) => k.device.as_mut()?.accelerometer()?.gravity_camera_m_s2(),
         }
     }
 
@@ -358,7 +355,7 @@ pub fn run(
     } else {
         crate::calib::current_base_from_camera(config, hand_eye).base_from_camera
     };
-    match backend.gravity_now(config) {
+    match backend.gravity_now() {
         Some(g) => {
             let check = check_gravity(config, &mount, &g);
             tracing::info!(

@@ -699,6 +699,7 @@ struct FakenectRate {
 }
 
 /// Where Debian's fakenect library is.
+#[cfg(feature = "kinect")]
 pub const FAKENECT_LIBRARY: &str = "/usr/lib/x86_64-linux-gnu/fakenect/libfreenect.so.0.5";
 
 /// Conversion cost goal of `cell bench camera` (ms per 640x480 frame).
