@@ -171,7 +171,8 @@ pub struct TableConfig {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraConfig {
-    /// Where snapshots come from: `sim` or `replay`.
+    /// Where snapshots come from: `sim`, `replay` or `kinect` (a Kinect v1 through
+    /// libfreenect; needs the `kinect` cargo feature).
     pub backend: String,
     /// Nominal camera pose: robot base from camera optical frame (z forward, x right, y down).
     /// A calibration result in `calib/hand_eye.toml` overrides it.
@@ -192,6 +193,28 @@ pub struct CameraConfig {
     pub min_range_m: f64,
     /// Farthest valid depth (m).
     pub max_range_m: f64,
+    /// Largest angle (deg) between the gravity the camera's accelerometer measures
+    /// and the base's -z seen through the calibrated mount before a warning.
+    #[serde(default = "default_gravity_check_max_deg")]
+    pub gravity_check_max_deg: f64,
+    /// Longest wait for a device camera's frame before the snapshot fails (s).
+    #[serde(default = "default_frame_timeout_s")]
+    pub frame_timeout_s: f64,
+    /// libfreenect's index of the Kinect to use (`kinect` backend).
+    #[serde(default)]
+    pub kinect_index: u32,
+    /// Stream the Kinect's colour camera too and keep each snapshot's colour
+    /// image with the trial's raw frame (`kinect` backend).
+    #[serde(default)]
+    pub rgb: bool,
+}
+
+fn default_gravity_check_max_deg() -> f64 {
+    2.0
+}
+
+fn default_frame_timeout_s() -> f64 {
+    2.0
 }
 
 /// An axis-aligned box in the base frame.
@@ -291,6 +314,11 @@ impl CellConfig {
             ("camera.fy_px", self.camera.fy_px),
             ("camera.min_range_m", self.camera.min_range_m),
             (
+                "camera.gravity_check_max_deg",
+                self.camera.gravity_check_max_deg,
+            ),
+            ("camera.frame_timeout_s", self.camera.frame_timeout_s),
+            (
                 "limits.joint_velocity_scale",
                 self.limits.joint_velocity_scale,
             ),
@@ -351,11 +379,11 @@ impl CellConfig {
                 ));
             }
         }
-        if !matches!(self.camera.backend.as_str(), "sim" | "replay") {
+        if !matches!(self.camera.backend.as_str(), "sim" | "replay" | "kinect") {
             return Err(invalid(
                 "camera.backend",
                 self.camera.backend.clone(),
-                "use sim or replay",
+                "use sim, replay or kinect",
             ));
         }
         if !matches!(self.fri.backend.as_str(), "sim" | "hardware") {

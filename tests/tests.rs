@@ -13,6 +13,8 @@ mod execute;
 mod fri;
 mod grasp;
 mod ipc;
+#[cfg(feature = "kinect")]
+mod kinect;
 mod layers;
 mod objects;
 mod perceive;

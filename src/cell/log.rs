@@ -19,9 +19,9 @@ use super::{span_ms, stop_requested, CellError, TICK};
 use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
 use crate::ipc::{
-    monotonic_now_ns, wait_any, CloudTopic, Domain, ExecutionStatus, FailureCause as IpcCause,
-    FitStatus, Fits, Grade as IpcGrade, GraspPlan, Phase, Stage, StageStatus, Timings,
-    TrialRequest, TrialResult, Wakeable,
+    monotonic_now_ns, wait_any, CameraFault, CameraStatus, CloudTopic, Domain, ExecutionStatus,
+    FailureCause as IpcCause, FitStatus, Fits, Grade as IpcGrade, GraspPlan, Phase, Stage,
+    StageStatus, Timings, TrialRequest, TrialResult, Wakeable,
 };
 use crate::robot::Robot;
 use crate::sim::observer::{Attempt, Observation, Observer};
@@ -64,6 +64,7 @@ struct Trial {
     started_at: UtcTimestamp,
     cloud_ns: u64,
     snapshot_path: Option<PathBuf>,
+    camera: Option<CameraStatus>,
     fits: Option<Fits>,
     plan: Option<GraspPlan>,
     first_command_ns: u64,
@@ -111,6 +112,19 @@ enum Ending {
     StageDied(&'static str),
     /// No end within the timeout.
     TimedOut(&'static str),
+    /// The camera reported that it has no snapshot.
+    Camera(CameraFault),
+}
+
+/// The trial log's note on a camera fault.
+fn camera_note(fault: CameraFault) -> String {
+    let what = match fault {
+        CameraFault::NoDevice => "no device (check USB, power and the udev rule)",
+        CameraFault::Vanished => "the device vanished mid-run",
+        CameraFault::Stalled => "frames stalled beyond the frame timeout",
+        CameraFault::Failed | CameraFault::None => "the backend failed",
+    };
+    format!("camera: {what}")
 }
 
 /// The ipc cause of a trial log cause.
@@ -253,6 +267,7 @@ impl Logger {
                     self.options.trial_timeout_s
                 ))
             }
+            Ending::Camera(fault) => return died(camera_note(*fault)),
             Ending::Reported => {}
         }
         let attempt = self.attempt(trial).map_err(CellError::Invalid)?;
@@ -343,6 +358,17 @@ impl Logger {
                 BTreeMap::from([("trial".to_string(), trial_id)]),
             ),
         };
+        let raw_frame = super::camera::raw_frame_dir(&self.options.run_dir, trial_id);
+        let gravity = trial
+            .camera
+            .filter(|c| c.gravity_angle_rad.is_finite())
+            .map(|c| {
+                json!({
+                    "camera_m_s2": c.gravity_camera_m_s2,
+                    "angle_deg": c.gravity_angle_rad.to_degrees(),
+                    "warning": c.gravity_warning != 0,
+                })
+            });
         let planned = trial
             .plan
             .filter(|p| matches!(p.failure(), Ok(IpcCause::None)))
@@ -373,6 +399,8 @@ impl Logger {
                 "contacts": seen.as_ref().map(|s| s.contacts),
                 "registration_error_m": seen.as_ref().and_then(|s| s.registration_error_m),
                 "timings_s": timings,
+                "gravity": gravity,
+                "raw_frame": raw_frame.join(crate::hw::kinect::fakenect::INDEX_FILE).is_file().then_some(raw_frame),
             })),
             seeds,
         };
@@ -382,6 +410,7 @@ impl Logger {
         let cause = match ending {
             Ending::StageDied(_) => IpcCause::StageDied,
             Ending::TimedOut(_) => IpcCause::Timeout,
+            Ending::Camera(_) => IpcCause::Camera,
             Ending::Reported => ipc_cause(grading.cause),
         };
         Ok(TrialResult::new(
@@ -465,12 +494,20 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
     let plans = stage.subscriber::<GraspPlan>()?;
     let statuses = stage.subscriber::<ExecutionStatus>()?;
     let requests = stage.subscriber::<TrialRequest>()?;
+    let camera_statuses = stage.subscriber::<CameraStatus>()?;
     notify::ready("log following trials");
     let mut watchdog = Watchdog::from_env();
     let timeout = Duration::from_secs_f64(logger.options.trial_timeout_s);
     while !stop_requested() {
         watchdog.ping();
-        let inputs: [&dyn Wakeable; 5] = [&requests, &clouds, &fits, &plans, &statuses];
+        let inputs: [&dyn Wakeable; 6] = [
+            &requests,
+            &clouds,
+            &fits,
+            &plans,
+            &statuses,
+            &camera_statuses,
+        ];
         match wait_any(&inputs, TICK) {
             Ok(_) => {}
             Err(_) if stop_requested() => break,
@@ -485,6 +522,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
                     started_at: UtcTimestamp::now(),
                     cloud_ns: 0,
                     snapshot_path: None,
+                    camera: None,
                     fits: None,
                     plan: None,
                     first_command_ns: 0,
@@ -498,6 +536,11 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             if let Some(t) = logger.trials.get_mut(&h.trial_id) {
                 t.cloud_ns = h.stamp_ns;
                 t.snapshot_path = save_snapshot(&logger.options.run_dir, &cloud);
+            }
+        }
+        while let Some(c) = camera_statuses.try_receive()? {
+            if let Some(t) = logger.trials.get_mut(&c.trial_id) {
+                t.camera = Some(c);
             }
         }
         while let Some(f) = fits.try_receive()? {
@@ -527,6 +570,14 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
         for (id, trial) in &logger.trials {
             if trial.end.is_some() {
                 finished.push((*id, Ending::Reported));
+                continue;
+            }
+            if let Some(fault) = trial
+                .camera
+                .and_then(|c| c.fault().ok())
+                .filter(|f| *f != CameraFault::None)
+            {
+                finished.push((*id, Ending::Camera(fault)));
                 continue;
             }
             let due = trial.waiting_for();

@@ -30,6 +30,8 @@ pub enum BenchCommand {
     Ipc(super::ipc::IpcBenchArgs),
     /// Grasp planning: median time for 7 models x 3 grasps with reachability, per kernel.
     Plan(super::plan::PlanBenchArgs),
+    /// Kinect camera backend: conversion cost per 640x480 frame and the frame rate delivered from fakenect.
+    Camera(super::camera::CameraBenchArgs),
     /// Registration: one partial mug view (~6k and ~28k points) against 11 models; per-stage medians.
     Register(super::perceive::RegisterBenchArgs),
 }
@@ -146,6 +148,7 @@ pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Ipc(args) => super::ipc::bench_ipc(args),
         BenchCommand::Plan(args) => super::plan::bench(config, args),
         BenchCommand::Register(args) => super::perceive::bench(config, args),
+        BenchCommand::Camera(args) => super::camera::bench_camera(config, args),
     }
 }
 

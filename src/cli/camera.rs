@@ -1,9 +1,16 @@
-//! `cell camera render` and `cell bench render`: the simulated depth camera.
+//! `cell camera render` and `cell bench render`: the simulated depth camera;
+//! `cell camera record` (any backend into a fakenect recording) and `cell bench
+//! camera` (the Kinect backend's conversion and fakenect frame rate).
 
 use super::bench::{cpu_ms, load_average, median, percentile, RenderBenchArgs};
 use super::objects::write_atomically;
+use crate::cell::camera::{CameraBackend, Snapshot};
 use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
+use crate::hw::kinect::convert::{cloud_to_raw, depth_to_cloud, DepthEncoding};
+use crate::hw::kinect::fakenect::{FakenectWriter, RawFrame};
+use crate::hw::kinect::gravity::{expected_gravity_camera, AccelCounts};
+use crate::hw::kinect::registration::{Registration, FRAME_HEIGHT, FRAME_WIDTH};
 use crate::mesh::procedural::{generate, Category};
 use crate::sim::camera::{DepthCamera, DepthFrame, Return, Surface};
 use crate::sim::scene::{load_scene, Scene, TableBox};
@@ -19,6 +26,35 @@ use std::time::Instant;
 pub enum CameraCommand {
     /// Render a scene file to an organised point cloud (camera optical frame).
     Render(RenderArgs),
+    /// Record frames of the configured camera (sim, replay or kinect) into a
+    /// fakenect directory (INDEX.txt, d-*.pgm, r-*.ppm, a-*.dump, device.json),
+    /// which the kinect backend plays through fakenect.
+    Record(RecordArgs),
+}
+
+/// Options of `cell camera record`.
+#[derive(Debug, Args)]
+pub struct RecordArgs {
+    /// Output directory (created; must not already hold a recording).
+    pub dir: PathBuf,
+    /// Number of frames (each: accelerometer, depth, colour; 30 frames/s).
+    #[arg(long, default_value_t = 30)]
+    pub frames: usize,
+    /// Scene file (TOML) the simulated camera renders (camera.backend = "sim").
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+    /// Seed of the first frame's sensor noise (sim); frame i uses seed + i.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Take frames from this backend instead of the configured camera.backend.
+    #[arg(long)]
+    pub backend: Option<String>,
+    /// Run directory of the replay backend (it reads `<run dir>/replay/`).
+    #[arg(long, default_value = "run")]
+    pub run_dir: PathBuf,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Options of `cell camera render`.
@@ -78,6 +114,7 @@ struct MissingCounts {
 pub fn run(config: &Path, command: CameraCommand) -> anyhow::Result<ExitCode> {
     match command {
         CameraCommand::Render(args) => render(config, args),
+        CameraCommand::Record(args) => record(config, args),
     }
 }
 
@@ -426,4 +463,375 @@ pub fn bench_render(config_path: &Path, args: RenderBenchArgs) -> anyhow::Result
     };
     super::emit(true, &report, |_| String::new())?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// What `cell camera record` reports.
+#[derive(Debug, Serialize)]
+struct RecordReport {
+    dir: PathBuf,
+    backend: String,
+    frames: usize,
+    records: usize,
+    focal_px: f64,
+    cx_px: f64,
+    cy_px: f64,
+    registration: Registration,
+    /// Accelerometer counts of the first frame (x, y, z), when there is one.
+    accel_counts: Option<[i16; 3]>,
+    /// Fraction of pixels with depth in the first frame.
+    valid_fraction: f64,
+}
+
+/// Colour of a simulated pixel: the table grey, objects in distinct colours.
+fn surface_rgb(surface: Surface) -> [u8; 3] {
+    const OBJECTS: [[u8; 3]; 4] = [[200, 40, 40], [40, 160, 60], [40, 80, 200], [220, 180, 40]];
+    match surface {
+        Surface::None => [0, 0, 0],
+        Surface::Table => [150, 140, 120],
+        Surface::Object(i) => OBJECTS[i as usize % OBJECTS.len()],
+    }
+}
+
+/// A grey image of a cloud's depth (near bright), for backends without colour.
+fn depth_grey(cloud: &crate::cloud::PointCloud) -> Vec<u8> {
+    cloud
+        .points
+        .iter()
+        .flat_map(|p| {
+            let v = if p.z.is_finite() {
+                (255.0 - 50.0 * p.z).clamp(0.0, 255.0) as u8
+            } else {
+                0
+            };
+            [v, v, v]
+        })
+        .collect()
+}
+
+/// The simulated camera's frames of `scene` as a Kinect with the configured focal
+/// length sees them: rendered with the Kinect's image centre as principal point,
+/// the depth encoded as raw 11-bit values, the accelerometer at rest under the
+/// scene's mount, colour by surface.
+fn sim_frames(
+    config: &CellConfig,
+    scene: &Scene,
+    base_from_camera: &Pose,
+    frames: usize,
+    seed: u64,
+) -> Vec<RawFrame> {
+    let (w, h) = (config.camera.width_px, config.camera.height_px);
+    let registration = Registration::with_focal(config.camera.fx_px);
+    let k = registration.intrinsics(w, h);
+    let mut camera = DepthCamera::from_config(&config.camera, *base_from_camera);
+    camera.intrinsics.fx_px = k.focal_px;
+    camera.intrinsics.fy_px = k.focal_px;
+    camera.intrinsics.cx_px = k.cx_px;
+    camera.intrinsics.cy_px = k.cy_px;
+    let accel = AccelCounts::at_rest(&expected_gravity_camera(base_from_camera));
+    let progress = indicatif::ProgressBar::new(frames as u64);
+    let out = (0..frames as u64)
+        .map(|i| {
+            let frame = camera.render(scene, seed + i);
+            let (depth_raw, _) = cloud_to_raw(&frame.to_cloud(), &registration, w, h);
+            progress.inc(1);
+            RawFrame {
+                depth_raw,
+                rgb: Some(frame.surface.iter().flat_map(|&s| surface_rgb(s)).collect()),
+                accel: Some(accel),
+                registration,
+                width: w,
+                height: h,
+            }
+        })
+        .collect();
+    progress.finish_and_clear();
+    out
+}
+
+/// The frame a Kinect would give of a backend's snapshot: its own raw frame, or
+/// its cloud encoded with the snapshot's focal length.
+fn snapshot_frame(config: &CellConfig, snapshot: Snapshot) -> RawFrame {
+    if let Some(raw) = snapshot.raw {
+        return raw;
+    }
+    let (w, h) = (config.camera.width_px, config.camera.height_px);
+    let registration = Registration::with_focal(snapshot.intrinsics.fx);
+    let (depth_raw, _) = cloud_to_raw(&snapshot.cloud, &registration, w, h);
+    let rgb =
+        (snapshot.cloud.len() == w as usize * h as usize).then(|| depth_grey(&snapshot.cloud));
+    RawFrame {
+        depth_raw,
+        rgb,
+        accel: snapshot
+            .gravity_camera_m_s2
+            .map(|g| AccelCounts::at_rest(&g)),
+        registration,
+        width: w,
+        height: h,
+    }
+}
+
+fn record(config_path: &Path, args: RecordArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(args.frames > 0, "--frames must be at least 1");
+    let mut config = CellConfig::load(config_path)?;
+    if let Some(b) = &args.backend {
+        config.camera.backend = b.clone();
+    }
+    let (w, h) = (config.camera.width_px, config.camera.height_px);
+    anyhow::ensure!(
+        (w, h) == (FRAME_WIDTH, FRAME_HEIGHT),
+        "camera.width_px/height_px = {w}x{h}: fakenect plays {FRAME_WIDTH}x{FRAME_HEIGHT} frames only"
+    );
+    let frames: Vec<RawFrame> = match config.camera.backend.as_str() {
+        "sim" => {
+            let scene = args.scene.as_deref().context(
+                "--scene: the simulated camera needs a scene file to record (see cell camera render)",
+            )?;
+            let loaded = load_scene(scene, &config)?;
+            sim_frames(
+                &config,
+                &loaded.scene,
+                &loaded.base_from_camera,
+                args.frames,
+                args.seed,
+            )
+        }
+        _ => {
+            let mut backend = CameraBackend::from_config(&config, &args.run_dir)?;
+            (0..args.frames as u64)
+                .map(|i| {
+                    backend
+                        .snapshot(&config, &args.run_dir, i + 1)
+                        .map(|s| snapshot_frame(&config, s))
+                        .with_context(|| format!("frame {i}"))
+                })
+                .collect::<anyhow::Result<_>>()?
+        }
+    };
+    let mut writer = FakenectWriter::create(&args.dir)?;
+    writer.registration(&frames[0].registration)?;
+    for (i, frame) in frames.iter().enumerate() {
+        frame.append(&mut writer, 1.0 + i as f64 / 30.0, i as u32 * 2_000_000)?;
+    }
+    let first = &frames[0];
+    let k = first.registration.intrinsics(w, h);
+    let valid = first
+        .depth_raw
+        .iter()
+        .filter(|&&r| r != crate::hw::kinect::registration::DEPTH_NO_VALUE)
+        .count();
+    let report = RecordReport {
+        dir: args.dir.clone(),
+        backend: config.camera.backend.clone(),
+        frames: frames.len(),
+        records: writer.records(),
+        focal_px: k.focal_px,
+        cx_px: k.cx_px,
+        cy_px: k.cy_px,
+        registration: first.registration,
+        accel_counts: first.accel.map(|a| [a.x, a.y, a.z]),
+        valid_fraction: valid as f64 / first.depth_raw.len().max(1) as f64,
+    };
+    super::emit(args.json, &report, |r| {
+        format!(
+            "{}: {} frames ({} records) from the {} camera, focal {:.1} px, {:.1} % valid depth\n\
+             play it: LD_LIBRARY_PATH=/usr/lib/x86_64-linux-gnu/fakenect FAKENECT_PATH={} <program>\n",
+            r.dir.display(),
+            r.frames,
+            r.records,
+            r.backend,
+            r.focal_px,
+            100.0 * r.valid_fraction,
+            r.dir.display()
+        )
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Options of `cell bench camera`.
+#[derive(Debug, Args)]
+pub struct CameraBenchArgs {
+    /// Timed conversions of one 640x480 frame (the median is reported).
+    #[arg(long, default_value_t = 50)]
+    pub repeats: usize,
+    /// Frames of the fakenect recording the frame rate is measured on.
+    #[arg(long, default_value_t = 60)]
+    pub frames: usize,
+    /// Seed of the mug model and the frame's noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print JSON (always JSON; accepted for uniformity).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// What `cell bench camera` reports.
+#[derive(Debug, Serialize)]
+struct CameraBench {
+    workload: String,
+    width_px: u32,
+    height_px: u32,
+    repeats: usize,
+    /// Median time (ms) to convert one raw 11-bit frame to an organised cloud.
+    conversion_ms_median: f64,
+    conversion_ms_p90: f64,
+    /// Time (ms) to build the raw-to-metres table (once per device).
+    table_build_ms: f64,
+    conversion_goal_ms: f64,
+    meets_conversion_goal: bool,
+    /// The backend against fakenect: snapshots (grab + conversion) per second,
+    /// each taking one frame of a recording made at `recorded_fps`.
+    fakenect: Option<FakenectRate>,
+    /// Why there is no fakenect figure (no `kinect` feature, no fakenect).
+    fakenect_skipped: Option<String>,
+    load_average: Option<[f64; 3]>,
+}
+
+/// The frame rate delivered from fakenect.
+#[derive(Debug, Serialize)]
+struct FakenectRate {
+    library: PathBuf,
+    frames: usize,
+    recorded_fps: f64,
+    delivered_fps: f64,
+    /// Median time of one grab (wait for the frame, copy, accelerometer) (ms).
+    grab_ms_median: f64,
+}
+
+/// Where Debian's fakenect library is.
+#[cfg(feature = "kinect")]
+pub const FAKENECT_LIBRARY: &str = "/usr/lib/x86_64-linux-gnu/fakenect/libfreenect.so.0.5";
+
+/// Conversion cost goal of `cell bench camera` (ms per 640x480 frame).
+const CONVERSION_GOAL_MS: f64 = 5.0;
+
+/// Runs `cell bench camera`.
+pub fn bench_camera(config_path: &Path, args: CameraBenchArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(args.repeats > 0, "--repeats must be at least 1");
+    anyhow::ensure!(args.frames >= 2, "--frames must be at least 2");
+    let config = CellConfig::load(config_path)?;
+    let table = TableBox::from(&config.table);
+    let (mug, _) = generate(Category::Mug, args.seed);
+    let mut scene = Scene::new(Some(table));
+    let base_from_mug = Pose::new(
+        nalgebra::Vector3::new(table.center_xy_m[0], table.center_xy_m[1], table.height_m),
+        nalgebra::Vector3::z() * 1.2,
+    );
+    scene
+        .add("mug", mug, base_from_mug)
+        .context("bench scene")?;
+    let dir = std::env::temp_dir().join(format!("gc-bench-camera-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)?;
+    let frame = sim_frames(&config, &scene, &config.base_from_camera(), 1, args.seed).remove(0);
+    let (w, h) = (frame.width, frame.height);
+    let started = Instant::now();
+    let table_m = frame.registration.depth_table_m();
+    let table_build_ms = started.elapsed().as_secs_f64() * 1e3;
+    let encoding = DepthEncoding::Disparity11 { table_m };
+    let k = frame.registration.intrinsics(w, h);
+    let range = [
+        config.camera.min_range_m as f32,
+        config.camera.max_range_m as f32,
+    ];
+    let mut times = Vec::with_capacity(args.repeats);
+    let mut valid = 0;
+    for _ in 0..args.repeats {
+        let started = Instant::now();
+        let cloud = depth_to_cloud(&frame.depth_raw, w, &encoding, &k, range);
+        times.push(started.elapsed().as_secs_f64() * 1e3);
+        valid = std::hint::black_box(&cloud)
+            .points
+            .iter()
+            .filter(|p| p.z.is_finite())
+            .count();
+    }
+    let conversion_ms_median = median(&mut times);
+    let (fakenect, fakenect_skipped) = match fakenect_rate(&frame, &dir, args.frames, range) {
+        Ok(rate) => (Some(rate), None),
+        Err(why) => (None, Some(why)),
+    };
+    std::fs::remove_dir_all(&dir).ok();
+    let report = CameraBench {
+        workload: format!(
+            "one {w}x{h} raw 11-bit frame of a mug on the table ({valid} valid points) converted to an organised cloud"
+        ),
+        width_px: w,
+        height_px: h,
+        repeats: args.repeats,
+        conversion_ms_median,
+        conversion_ms_p90: percentile(&mut times, 0.9),
+        table_build_ms,
+        conversion_goal_ms: CONVERSION_GOAL_MS,
+        meets_conversion_goal: conversion_ms_median < CONVERSION_GOAL_MS,
+        fakenect,
+        fakenect_skipped,
+        load_average: super::bench::load_average(),
+    };
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(feature = "kinect")]
+fn fakenect_rate(
+    frame: &RawFrame,
+    dir: &Path,
+    frames: usize,
+    range: [f32; 2],
+) -> Result<FakenectRate, String> {
+    use crate::hw::kinect::device::{Kinect, KinectOptions};
+    let library = PathBuf::from(FAKENECT_LIBRARY);
+    if !library.exists() {
+        return Err(format!(
+            "{}: missing (apt-get install libfreenect-dev)",
+            library.display()
+        ));
+    }
+    let recording = dir.join("recording");
+    frame
+        .write_recording(&recording, frames)
+        .map_err(|e| e.to_string())?;
+    // fakenect reads FAKENECT_PATH when it first plays; nothing else in this
+    // process reads the environment concurrently.
+    std::env::set_var("FAKENECT_PATH", &recording);
+    std::env::set_var("FAKENECT_LOOP", "0");
+    let mut kinect = Kinect::open(KinectOptions {
+        index: 0,
+        rgb: true,
+        frame_timeout_s: 2.0,
+        settle_frames: 0,
+        library: Some(library.clone()),
+    })
+    .map_err(|e| e.to_string())?;
+    // The first grab starts playback; time the rest.
+    kinect.grab().map_err(|e| e.to_string())?;
+    let started = Instant::now();
+    let mut grabs = Vec::with_capacity(frames);
+    for _ in 1..frames {
+        let t = Instant::now();
+        let f = kinect.grab().map_err(|e| e.to_string())?;
+        std::hint::black_box(kinect.to_cloud(&f, range));
+        grabs.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let elapsed = started.elapsed().as_secs_f64();
+    Ok(FakenectRate {
+        library,
+        frames,
+        recorded_fps: 30.0,
+        delivered_fps: (frames - 1) as f64 / elapsed,
+        grab_ms_median: median(&mut grabs),
+    })
+}
+
+#[cfg(not(feature = "kinect"))]
+fn fakenect_rate(
+    _frame: &RawFrame,
+    _dir: &Path,
+    _frames: usize,
+    _range: [f32; 2],
+) -> Result<FakenectRate, String> {
+    Err(
+        "built without the kinect feature (cargo build --release --features kinect --bin cell)"
+            .into(),
+    )
 }

@@ -174,6 +174,24 @@ coded_enum!(
         HardwareFault = 7,
         /// The execution went wrong (refused motion, collision, slip, no contact).
         Execution = 8,
+        /// The camera gave no snapshot (device missing, vanished or stalled).
+        Camera = 9,
+    }
+);
+
+coded_enum!(
+    /// Why the camera gave no snapshot for a trial.
+    CameraFault, "camera fault", {
+        /// A snapshot was published.
+        None = 0,
+        /// No device at start (or since it vanished): USB, power, udev rule.
+        NoDevice = 1,
+        /// The device stopped answering mid-run (unplugged; a recording ended).
+        Vanished = 2,
+        /// No frame within the frame timeout.
+        Stalled = 3,
+        /// Any other failure of the backend (unreadable recording, ...).
+        Failed = 4,
     }
 );
 
@@ -876,6 +894,53 @@ impl TrialResult {
     }
 }
 
+/// Camera -> log: for every trial request, the snapshot's accelerometer and
+/// gravity check, or why there is no snapshot.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("graspcell::ipc::CameraStatus")]
+pub struct CameraStatus {
+    /// Trial id.
+    pub trial_id: u64,
+    /// Monotonic time of the snapshot or of the failure (ns).
+    pub stamp_ns: u64,
+    fault: u32,
+    /// 1 when the gravity check exceeded its limit (camera bumped or calibration stale).
+    pub gravity_warning: u32,
+    /// Gravity measured by the camera's accelerometer in the camera optical frame
+    /// (m/s^2); NaN when the camera has none.
+    pub gravity_camera_m_s2: [f64; 3],
+    /// Angle between the measured gravity and the base's -z through the calibrated
+    /// mount (rad); NaN when not measured.
+    pub gravity_angle_rad: f64,
+}
+message!(CameraStatus, Topic::CameraStatus);
+
+impl Default for CameraStatus {
+    fn default() -> Self {
+        CameraStatus::new(0, 0, CameraFault::None)
+    }
+}
+
+impl CameraStatus {
+    /// A status without gravity data.
+    pub fn new(trial_id: u64, stamp_ns: u64, fault: CameraFault) -> CameraStatus {
+        CameraStatus {
+            trial_id,
+            stamp_ns,
+            fault: fault.code(),
+            gravity_warning: 0,
+            gravity_camera_m_s2: [f64::NAN; 3],
+            gravity_angle_rad: f64::NAN,
+        }
+    }
+
+    /// Why there is no snapshot ([`CameraFault::None`] when there is one).
+    pub fn fault(&self) -> Result<CameraFault, IpcError> {
+        CameraFault::from_code(self.fault)
+    }
+}
+
 /// Diagnostics: a receiver's acknowledgement of one cloud.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
@@ -981,6 +1046,7 @@ mod tests {
         check(FitStatus::ALL, FitStatus::code, FitStatus::from_code);
         check(Phase::ALL, Phase::code, Phase::from_code);
         check(Grade::ALL, Grade::code, Grade::from_code);
+        check(CameraFault::ALL, CameraFault::code, CameraFault::from_code);
         check(
             FailureCause::ALL,
             FailureCause::code,

@@ -42,11 +42,13 @@ pub enum Topic {
     CloudEcho,
     /// Diagnostics: acknowledgement of a received cloud (tests, `cell bench ipc`).
     CloudAck,
+    /// Camera -> log: each snapshot's gravity check, or why there is none.
+    CameraStatus,
 }
 
 impl Topic {
     /// Every topic.
-    pub const ALL: [Topic; 9] = [
+    pub const ALL: [Topic; 10] = [
         Topic::TrialRequest,
         Topic::Cloud,
         Topic::Fits,
@@ -56,6 +58,7 @@ impl Topic {
         Topic::TrialResult,
         Topic::CloudEcho,
         Topic::CloudAck,
+        Topic::CameraStatus,
     ];
 
     /// The topic's path below the instance (`<publishing stage>/<what>`).
@@ -70,6 +73,7 @@ impl Topic {
             Topic::TrialResult => "log/trial_result",
             Topic::CloudEcho => "diagnostics/cloud_echo",
             Topic::CloudAck => "diagnostics/cloud_ack",
+            Topic::CameraStatus => "camera/status",
         }
     }
 }
