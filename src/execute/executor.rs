@@ -2,17 +2,19 @@
 //! [`crate::execute`].
 
 use super::arm::Arm;
-use super::motions::{lifted, validate_grasp, GraspMotions};
+use super::motions::{advanced, approach_speed_m_s, lifted, validate_grasp, GraspMotions};
 use super::path::{straight_line, PathTolerance, StraightPath};
-use super::report::{ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
+use super::report::{
+    ApproachReport, ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport,
+};
 use super::request::ExecutionRequest;
 use super::safety::{SafeArm, SafeArmError, SafetyLimits};
 use super::{ExecuteError, Phase};
 use crate::clock::Clock;
-use crate::config::CellConfig;
+use crate::config::{ApproachConfig, CellConfig};
 use crate::geometry::PoseJson;
 use crate::hw::can::CanBus;
-use crate::hw::fri::{FriError, FriState, FriStatus};
+use crate::hw::fri::{ForceGuard, FriError, FriState, FriStatus};
 use crate::hw::hand::{Hand, HandPositions, Puck};
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, Robot};
@@ -56,6 +58,8 @@ pub struct ExecutorConfig {
     pub plan_tolerance_m: f64,
     /// Largest rotation between the palm at the planner's joints and its pose (rad).
     pub plan_tolerance_rad: f64,
+    /// Approach to contact: overtravel, contact force, speed.
+    pub approach: ApproachConfig,
 }
 
 impl Default for ExecutorConfig {
@@ -78,6 +82,7 @@ impl Default for ExecutorConfig {
             path: PathTolerance::default(),
             plan_tolerance_m: 1e-3,
             plan_tolerance_rad: 0.01,
+            approach: ApproachConfig::default(),
         }
     }
 }
@@ -87,6 +92,7 @@ impl ExecutorConfig {
     pub fn from_cell(config: &CellConfig) -> ExecutorConfig {
         ExecutorConfig {
             palm_speed_m_s: config.limits.palm_speed_m_s,
+            approach: config.approach.clone(),
             ..ExecutorConfig::default()
         }
     }
@@ -278,22 +284,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             Ok(())
         })?;
         self.phase(Phase::Approach, report, began, observer, |ex, report| {
-            let start = ex.commanded();
-            let path = straight_line(
-                &ex.robot,
-                &start,
-                &plan.request.palm,
-                Some(&plan.request.joints_rad),
-                &ex.config.path,
-            )
-            .map_err(|source| ExecuteError::Path {
-                phase: Phase::Approach,
-                motion: "approach",
-                source,
-            })?;
-            report.approach =
-                Some(ex.move_along(Phase::Approach, "approach", &path.waypoints, Some(&path))?);
-            Ok(())
+            ex.approach(&plan, report)
         })?;
         let contacts = self.phase(Phase::Close, report, began, observer, |ex, report| {
             ex.close(report)
@@ -314,6 +305,54 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         self.phase(Phase::Hold, report, began, observer, |ex, report| {
             ex.hold(&contacts, report)
         })
+    }
+
+    /// The guarded approach from where the arm is through the grasp to the end
+    /// of the overtravel; returns once the arm is at rest, on contact or at the
+    /// end.
+    fn approach(
+        &mut self,
+        plan: &GraspMotions,
+        report: &mut ExecutionReport,
+    ) -> Result<(), ExecuteError> {
+        const PHASE: Phase = Phase::Approach;
+        let start = self.commanded();
+        let end = advanced(&plan.request.palm, plan.overtravel_m);
+        let path = straight_line(
+            &self.robot,
+            &start,
+            &end,
+            Some(&plan.approach_end_rad),
+            &self.config.path,
+        )
+        .map_err(|source| ExecuteError::Path {
+            phase: PHASE,
+            motion: "approach",
+            source,
+        })?;
+        let guard = ForceGuard {
+            threshold_n: self.config.approach.contact_force_n,
+        };
+        let (motion, force_n) = self.move_along_guarded(
+            PHASE,
+            "approach",
+            &path.waypoints,
+            Some(&path),
+            approach_speed_m_s(&self.config),
+            Some(guard),
+        )?;
+        report.approach = Some(motion);
+        // At rest where the arm stopped: how far along the approach axis.
+        let palm = self.robot.arm().palm(&self.arm.arm().status().measured_rad);
+        let beyond_plan_m = (plan.request.palm.inverse() * palm).translation.z;
+        report.approach_stop = Some(ApproachReport {
+            overtravel_m: plan.overtravel_m,
+            contact: force_n.is_some(),
+            contact_force_n: force_n,
+            beyond_plan_m,
+        });
+        tracing::info!(contact = force_n.is_some(), beyond_plan_m, "approach ended");
+        Ok(())
     }
 
     /// The joints the arm is commanded to now.
@@ -351,12 +390,38 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         waypoints: &[ArmJoints],
         path: Option<&StraightPath>,
     ) -> Result<MotionReport, ExecuteError> {
-        let (trajectory, report) =
-            super::motions::motion(self.arm.safety(), &self.config, phase, waypoints, path)?;
+        let speed = self.config.palm_speed_m_s;
+        self.move_along_guarded(phase, motion, waypoints, path, speed, None)
+            .map(|(report, _)| report)
+    }
+
+    /// [`Self::move_along`] at most at `palm_speed_m_s` on straight paths, and with
+    /// `guard`: a motion stopped on contact ends well, once the arm is at rest,
+    /// with the force that stopped it.
+    fn move_along_guarded(
+        &mut self,
+        phase: Phase,
+        motion: &'static str,
+        waypoints: &[ArmJoints],
+        path: Option<&StraightPath>,
+        palm_speed_m_s: f64,
+        guard: Option<ForceGuard>,
+    ) -> Result<(MotionReport, Option<f64>), ExecuteError> {
+        let (trajectory, report) = super::motions::motion(
+            self.arm.safety(),
+            palm_speed_m_s,
+            phase,
+            waypoints,
+            path,
+        )?;
         let deadline_s = trajectory.duration_s() * self.config.motion_timeout_factor
             + self.config.motion_timeout_margin_s;
         let start = self.clock.now();
-        let id = self.arm.start_trajectory(trajectory).map_err(|e| match e {
+        let started = match guard {
+            Some(guard) => self.arm.start_guarded_trajectory(trajectory, guard),
+            None => self.arm.start_trajectory(trajectory),
+        };
+        let id = started.map_err(|e| match e {
             SafeArmError::Unsafe(source) => ExecuteError::Unsafe {
                 phase,
                 motion,
@@ -364,11 +429,22 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             },
             SafeArmError::Arm(source) => ExecuteError::from_arm(phase, source),
         })?;
+        let mut contact_n = None;
         loop {
-            if let Some(outcome) = self.arm.arm().motion_outcome(id) {
-                return outcome
-                    .map(|()| report)
-                    .map_err(|e| ExecuteError::from_arm(phase, e));
+            match self.arm.arm().motion_outcome(id) {
+                Some(Err(FriError::Contact { force_n, .. })) if guard.is_some() => {
+                    contact_n = Some(force_n);
+                    // Braking: done once the arm is at rest.
+                    if !self.arm.arm().status().moving {
+                        return Ok((report, contact_n));
+                    }
+                }
+                Some(outcome) if contact_n.is_none() => {
+                    return outcome
+                        .map(|()| (report, None))
+                        .map_err(|e| ExecuteError::from_arm(phase, e));
+                }
+                _ => {}
             }
             let elapsed_s = secs(self.clock.now().saturating_sub(start));
             if elapsed_s > deadline_s {
@@ -944,6 +1020,13 @@ mod tests {
         }
         fn start_trajectory(&self, t: Trajectory<JOINTS>) -> Result<u64, FriError> {
             self.0.start_trajectory(t)
+        }
+        fn start_guarded_trajectory(
+            &self,
+            t: Trajectory<JOINTS>,
+            guard: crate::hw::fri::ForceGuard,
+        ) -> Result<u64, FriError> {
+            self.0.start_guarded_trajectory(t, guard)
         }
         fn motion_outcome(&self, _id: u64) -> Option<Result<(), FriError>> {
             None

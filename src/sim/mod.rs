@@ -7,3 +7,4 @@ pub mod fri;
 pub mod observer;
 pub mod puck;
 pub mod scene;
+pub mod world;
