@@ -636,3 +636,254 @@ impl crate::sim::puck::Feel for HandContact {
         });
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::ManualClock;
+    use crate::hw::can::{CanBus, VirtualBus};
+    use crate::hw::hand::{Hand, HandPositions, HandTiming, Puck};
+    use crate::mesh::procedural::{generate, Category};
+    use crate::quality::approach::{approach_to_contact, ApproachOptions};
+    use crate::quality::autograsp::tests::{cuboid, hand_of};
+    use crate::robot::shipped_robot;
+    use crate::sim::puck::{HandEmulator, HandEmulatorConfig};
+    use crate::sim::scene::TableBox;
+    use std::f64::consts::PI;
+
+    fn hand() -> Arc<HandModel> {
+        Arc::new(hand_of(&shipped_robot()))
+    }
+
+    fn table() -> TableBox {
+        TableBox {
+            height_m: 0.0,
+            center_xy_m: [0.65, 0.0],
+            extent_xy_m: [0.8, 1.2],
+            thickness_m: 0.05,
+        }
+    }
+
+    /// A mug standing on the table at (0.6, 0, 0), and its mesh.
+    fn mug_world() -> (SimWorld, TriMesh) {
+        let mesh = generate(Category::Mug, 5).0;
+        let mut scene = Scene::new(Some(table()));
+        scene
+            .add("mug", mesh.clone(), Pose::translation(0.6, 0.0, 0.0))
+            .unwrap();
+        (SimWorld::new(&scene, hand(), 2e4).unwrap(), mesh)
+    }
+
+    use crate::mesh::TriMesh;
+
+    #[test]
+    fn the_contact_force_is_penetration_times_stiffness_along_the_normal() {
+        // A box whose top is at z = 0.3 under a palm facing down: the fingertips
+        // (open hand) press 2 mm into it.
+        let hand = hand();
+        let open = HandPose::OPEN;
+        let reach = hand
+            .link_poses(&open)
+            .iter()
+            .flat_map(|(link, pose)| {
+                link.shapes.iter().map(move |(local, shape)| {
+                    shape.compute_aabb(&(pose * local)).maxs.z
+                })
+            })
+            .fold(f64::MIN, f64::max);
+        let mut scene = Scene::new(None);
+        scene
+            .add("box", cuboid([0.0, 0.0, 0.0], [0.4, 0.4, 0.1]), Pose::translation(0.6, 0.0, 0.25))
+            .unwrap();
+        let world = SimWorld::new(&scene, Arc::clone(&hand), 2e4).unwrap();
+        let down = |z: f64| {
+            Pose::from_parts(
+                Translation3::new(0.6, 0.0, z),
+                UnitQuaternion::from_euler_angles(PI, 0.0, 0.0),
+            )
+        };
+        let free = world.tcp_wrench(&down(0.3 + reach + 0.001), &open);
+        assert_eq!(free, [0.0; 6]);
+        let ft = world.tcp_wrench(&down(0.3 + reach - 0.002), &open);
+        // In the palm frame the push is along -z (back against the approach),
+        // one link's 2 mm at least, at most every link's.
+        let links = hand.link_poses(&open).len() as f64;
+        assert!(ft[0].abs() < 1e-6 && ft[1].abs() < 1e-6, "{ft:?}");
+        assert!(ft[2] < -40.0 + 1e-6 && ft[2] > -40.0 * links - 1e-6, "{ft:?}");
+        // A table under the hand pushes up too.
+        let mut on_table = Scene::new(Some(table()));
+        on_table
+            .add("far", cuboid([0.0; 3], [0.01; 3]), Pose::translation(2.0, 0.0, 0.0))
+            .unwrap();
+        let world = SimWorld::new(&on_table, hand, 2e4).unwrap();
+        let ft = world.tcp_wrench(&down(reach - 0.001), &open);
+        assert!(ft[2] < -20.0 + 1e-6, "{ft:?}");
+        assert!(SimWorld::new(&Scene::new(None), hand_arc(), 0.0)
+            .unwrap_err()
+            .to_string()
+            .contains("stiffness"));
+    }
+
+    fn hand_arc() -> Arc<HandModel> {
+        hand()
+    }
+
+    /// The hand driver on a virtual bus with an emulator feeling `world` at the
+    /// palm pose published on `link`.
+    fn hand_in(world: SimWorld, link: &WorldLink, name: &str) -> (Hand<Box<dyn CanBus>>, crate::sim::puck::EmulatorThread) {
+        let bus = VirtualBus::new(name);
+        let node = bus.endpoint();
+        let probe = node.idle_probe();
+        let clock: Arc<dyn crate::clock::Clock> = Arc::new(ManualClock::new().with_settle(move || {
+            probe.wait_idle(Duration::from_secs(5));
+        }));
+        let feel = HandContact::new(WorldWatch::fixed(Some(world)), link.clone());
+        let emulator = HandEmulator::new(HandEmulatorConfig::default(), Arc::clone(&clock))
+            .unwrap()
+            .with_feel(Box::new(feel))
+            .spawn(node);
+        let mut hand = Hand::new(
+            Box::new(bus.endpoint()) as Box<dyn CanBus>,
+            clock,
+            HandTiming::default(),
+        );
+        let t = Duration::from_secs(30);
+        hand.wake(t).unwrap();
+        hand.identify(t).unwrap();
+        hand.initialise(t).unwrap();
+        (hand, emulator)
+    }
+
+    fn preshape(hand: &mut Hand<Box<dyn CanBus>>, spread_rad: f64) -> [i32; 3] {
+        let t = Duration::from_secs(10);
+        hand.move_to(
+            &HandPositions {
+                fingers_rad: [0.0; 3],
+                spread_rad,
+            },
+            t,
+        )
+        .unwrap();
+        hand.strain(t).unwrap()
+    }
+
+    #[test]
+    fn a_grasp_on_a_mug_stops_the_fingers_at_the_grasp_simulators_contact_angles() {
+        let (world, mesh) = mug_world();
+        let hand_model = hand();
+        // A side grasp at mid-height: approach along +x from well outside.
+        let (lo, hi) = mesh
+            .vertices
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(lo, hi), v| (lo.min(v.z), hi.max(v.z)));
+        let side = nalgebra::Rotation3::from_basis_unchecked(&[
+            Vector3::z(),
+            -Vector3::y(),
+            Vector3::x(),
+        ]);
+        let planned = Pose::from_parts(
+            Translation3::new(-0.12, 0.0, (hi - 0.02).max(0.5 * (lo + hi))),
+            UnitQuaternion::from_rotation_matrix(&side),
+        );
+        let object = GraspObject::new(&mesh, Path::new("mug")).unwrap().with_table(Some(0.0));
+        let spread = 0.0;
+        let stop = approach_to_contact(
+            &hand_model,
+            &object,
+            &planned,
+            spread,
+            &ApproachOptions::default(),
+        )
+        .unwrap();
+        assert!(stop.contact.is_some(), "{stop:?}");
+        // The grasp simulator, independently of the emulator.
+        let expected = close_hand(
+            &hand_model,
+            &object,
+            &stop.object_from_palm,
+            spread,
+            &AutoGraspOptions::default(),
+        )
+        .unwrap();
+        let touching: Vec<usize> = (0..3)
+            .filter(|&i| expected.stops[i] != FingerStop::Limit)
+            .collect();
+        assert!(touching.len() >= 2, "{expected:?}");
+
+        let link = WorldLink::memory();
+        let base_from_palm = Pose::translation(0.6, 0.0, 0.0) * stop.object_from_palm;
+        link.set_palm(&base_from_palm);
+        let (mut hand, _emulator) = hand_in(world, &link, "world-mug");
+        let baseline = preshape(&mut hand, spread);
+        let t = Duration::from_secs(10);
+        let outcomes = hand.close(t).unwrap();
+        let positions = hand.positions(t).unwrap();
+        let strain = hand.strain(t).unwrap();
+        for i in 0..3 {
+            let o = outcomes.iter().find(|o| o.puck == Puck::FINGERS[i]).unwrap();
+            if touching.contains(&i) {
+                assert!(!o.reached_target, "F{}: {o:?}", i + 1);
+                assert!(
+                    (positions.fingers_rad[i] - expected.hand.flex_rad[i]).abs() < 2e-3,
+                    "F{}: driver {} rad, grasp simulator {} rad",
+                    i + 1,
+                    positions.fingers_rad[i],
+                    expected.hand.flex_rad[i]
+                );
+                assert!(strain[i] - baseline[i] >= 300, "{strain:?} {baseline:?}");
+            } else {
+                assert!(o.reached_target, "F{}: {o:?}", i + 1);
+            }
+        }
+        // The hand told the arm's side that it holds the object.
+        assert!(link.hand().holding);
+        assert!((link.hand().pose.flex_rad[touching[0]] - positions.fingers_rad[touching[0]]).abs() < 2e-3);
+    }
+
+    #[test]
+    fn a_grasp_on_air_reports_no_contact_through_the_hand_driver() {
+        let (world, _) = mug_world();
+        let link = WorldLink::memory();
+        // The palm 0.3 m above the mug, facing down: nothing within reach.
+        link.set_palm(&Pose::from_parts(
+            Translation3::new(0.6, 0.0, 0.6),
+            UnitQuaternion::from_euler_angles(PI, 0.0, 0.0),
+        ));
+        let (mut hand, _emulator) = hand_in(world, &link, "world-air");
+        let baseline = preshape(&mut hand, 0.3);
+        let t = Duration::from_secs(10);
+        let outcomes = hand.close(t).unwrap();
+        let strain = hand.strain(t).unwrap();
+        for o in outcomes.iter().filter(|o| o.puck.is_finger()) {
+            assert!(o.reached_target, "{o:?}");
+        }
+        assert_eq!(strain, baseline);
+        assert!(!link.hand().holding);
+    }
+
+    #[test]
+    fn shared_state_files_round_trip_between_handles() {
+        let dir = std::env::temp_dir().join(format!("gc-world-link-{}", std::process::id()));
+        let a = WorldLink::files(&dir).unwrap();
+        let b = WorldLink::files(&dir).unwrap();
+        assert_eq!(b.palm(), None);
+        let pose = Pose::from_parts(
+            Translation3::new(0.5, -0.1, 0.3),
+            UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3),
+        );
+        a.set_palm(&pose);
+        let got = b.palm().unwrap();
+        assert!((got.translation.vector - pose.translation.vector).norm() < 1e-12);
+        assert!(got.rotation.angle_to(&pose.rotation) < 1e-9);
+        let state = HandState {
+            pose: HandPose {
+                spread_rad: 0.4,
+                flex_rad: [1.0, 1.1, 1.2],
+            },
+            holding: true,
+        };
+        b.set_hand(&state);
+        assert_eq!(a.hand(), state);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
