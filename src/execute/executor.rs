@@ -678,7 +678,7 @@ mod tests {
     use crate::clock::ManualClock;
     use crate::execute::lockstep::LockstepArm;
     use crate::execute::SafetyError;
-    use crate::geometry::pose_from_params;
+    use crate::geometry::{pose_from_params, Pose};
     use crate::hw::can::{CanBus, VirtualBus};
     use crate::hw::fri::JOINTS;
     use crate::hw::fri::{FriStatus, Quality};
@@ -725,15 +725,44 @@ mod tests {
 
     impl Rig {
         fn new(emulator: HandEmulatorConfig) -> Rig {
-            let bus = VirtualBus::new("execute-unit");
+            Rig::build(emulator, None)
+        }
+
+        /// Arm and hand in a simulated world of `scene`: the arm simulator reports
+        /// its contact force, the hand emulator stalls where the grasp simulator
+        /// closes on it.
+        fn in_world(scene: &crate::sim::scene::Scene, name: &str) -> Rig {
+            Rig::build(HandEmulatorConfig::default(), Some((scene, name)))
+        }
+
+        fn build(
+            emulator: HandEmulatorConfig,
+            world: Option<(&crate::sim::scene::Scene, &str)>,
+        ) -> Rig {
+            use crate::sim::world::{ArmContact, HandContact, SimWorld, WorldLink, WorldWatch};
+            let robot = Arc::new(shipped_robot());
+            let link = WorldLink::memory();
+            let watch = world.map(|(scene, _)| {
+                let hand = crate::robot::hand::HandModel::from_description(
+                    &robot.description,
+                    "bh_palm",
+                    std::path::Path::new("shipped"),
+                )
+                .unwrap();
+                WorldWatch::fixed(Some(SimWorld::new(scene, Arc::new(hand), 2e4).unwrap()))
+            });
+            let bus = VirtualBus::new(world.map_or("execute-unit", |w| w.1));
             let node = bus.endpoint();
             let probe = node.idle_probe();
             let clock: Arc<dyn Clock> = Arc::new(ManualClock::new().with_settle(move || {
                 probe.wait_idle(Duration::from_secs(5));
             }));
-            let emulator = HandEmulator::new(emulator, Arc::clone(&clock))
-                .unwrap()
-                .spawn(node);
+            let mut emulator = HandEmulator::new(emulator, Arc::clone(&clock)).unwrap();
+            if let Some(watch) = &watch {
+                emulator =
+                    emulator.with_feel(Box::new(HandContact::new(watch.clone(), link.clone())));
+            }
+            let emulator = emulator.spawn(node);
             let hand = Hand::new(
                 Box::new(bus.endpoint()) as Box<dyn CanBus>,
                 Arc::clone(&clock),
@@ -747,11 +776,15 @@ mod tests {
                 0.1,
                 Arc::clone(&clock),
             );
+            if let Some(watch) = watch {
+                let contact = ArmContact::new(Arc::clone(&robot), watch, link);
+                arm.with_sim(|s| s.set_external_force(Some(Box::new(contact))));
+            }
             Rig {
                 arm,
                 hand: std::cell::RefCell::new(Some(hand)),
                 clock,
-                robot: Arc::new(shipped_robot()),
+                robot,
                 _emulator: emulator,
             }
         }
@@ -814,12 +847,16 @@ mod tests {
         assert!(report.phases.iter().all(|p| p.ok));
         let hold = report.phases.last().unwrap();
         assert!(hold.duration_s >= 2.0, "{hold:?}");
-        // The simulated robot (not the driver's view) ends 0.10 m above the grasp.
+        // Nothing in the arm's world: the approach went the whole overtravel
+        // (0.05 m past the grasp at z = 0.20), and the simulated robot (not the
+        // driver's view) ends 0.10 m above that.
+        let stop = report.approach_stop.as_ref().unwrap();
+        assert!(!stop.contact && (stop.beyond_plan_m - 0.05).abs() < 1e-3, "{stop:?}");
         let q = rig.sim_joints();
         let palm = robot.arm().palm(&q).translation.vector;
         assert!((palm.x - 0.6).abs() < 1e-3, "{palm:?}");
         assert!(palm.y.abs() < 1e-3, "{palm:?}");
-        assert!((palm.z - 0.30).abs() < 1e-3, "{palm:?}");
+        assert!((palm.z - 0.25).abs() < 1e-3, "{palm:?}");
         assert_eq!(rig.arm.with_sim(|s| s.drop_reason()), None);
         // Fingers stopped on the object, with strain; the spread as planned.
         assert_eq!(report.fingers_in_contact, Puck::FINGERS.to_vec());
@@ -956,8 +993,9 @@ mod tests {
             ),
             "{err}"
         );
+        // It holds where the approach ended: the whole overtravel past the grasp.
         let palm = rig.robot.arm().palm(&rig.sim_joints()).translation.vector;
-        assert!((palm.z - 0.20).abs() < 1e-3, "{palm:?}");
+        assert!((palm.z - 0.15).abs() < 1e-3, "{palm:?}");
     }
 
     #[test]
@@ -1008,6 +1046,105 @@ mod tests {
         assert!(
             matches!(err, ExecuteError::PlanMismatch { which: "grasp", pos_err_m, .. } if (pos_err_m - 0.05).abs() < 1e-3),
             "{err}"
+        );
+    }
+
+    /// How far the open hand (spread 0.3) reaches ahead of the palm along its
+    /// approach axis: the largest palm-frame z of its link boxes.
+    fn reach_ahead(robot: &Robot) -> f64 {
+        let hand = crate::robot::hand::HandModel::from_description(
+            &robot.description,
+            "bh_palm",
+            std::path::Path::new("shipped"),
+        )
+        .unwrap();
+        let open = HandPose {
+            spread_rad: 0.3,
+            flex_rad: [0.0; 3],
+        };
+        hand.link_poses(&open)
+            .iter()
+            .flat_map(|(link, pose)| {
+                link.shapes
+                    .iter()
+                    .map(move |(local, shape)| shape.compute_aabb(&(pose * local)).maxs.z)
+            })
+            .fold(f64::MIN, f64::max)
+    }
+
+    #[test]
+    fn the_guarded_approach_stops_at_first_contact_with_a_box_through_the_fri_driver() {
+        // A wide block under the top-down grasp at z = 0.20 whose top is 30 mm
+        // beyond the open fingertips' reach at the planned pose: the approach
+        // (pre-grasp at 0.30) must stop about 30 mm past the plan, on the arm
+        // simulator's contact force, through the real FRI driver core.
+        let robot = shipped_robot();
+        let top = 0.20 - reach_ahead(&robot) - 0.030;
+        let mut scene = crate::sim::scene::Scene::new(None);
+        scene
+            .add(
+                "block",
+                crate::quality::autograsp::tests::cuboid([0.0, 0.0, -0.05], [0.3, 0.3, 0.1]),
+                Pose::translation(0.6, 0.0, top),
+            )
+            .unwrap();
+        let rig = Rig::in_world(&scene, "execute-block");
+        let req = request(&rig.robot);
+        let report = rig.executor(&rig.arm).execute(&req);
+        let stop = report.approach_stop.as_ref().expect(&report.human());
+        assert!(stop.contact, "{stop:?}");
+        assert!(stop.contact_force_n.unwrap() > 10.0, "{stop:?}");
+        // First contact at 30 mm; the force reaches 10 N within 0.5 mm of
+        // penetration and the arm brakes from 0.05 m/s within about 1 mm.
+        assert!(
+            stop.beyond_plan_m > 0.030 && stop.beyond_plan_m < 0.033,
+            "stopped {} m beyond the plan",
+            stop.beyond_plan_m
+        );
+        // The fingertips stood on the flat face: closing jams them there at
+        // once (in contact, with strain), but the grasp is not force closure,
+        // so the block stays behind when the arm lifts: the grasp is lost.
+        assert_eq!(report.fingers_in_contact, Puck::FINGERS.to_vec(), "{}", report.human());
+        let err = report.error.as_ref().expect("no grasp on a flat face");
+        assert!(
+            matches!(err, ExecuteError::GraspLost { strain_rise: 0, .. }),
+            "{}",
+            report.human()
+        );
+        // The simulated robot itself lifted 0.10 m from where the approach stopped.
+        let palm = rig.robot.arm().palm(&rig.sim_joints()).translation.vector;
+        assert!((palm.z - (0.30 - stop.beyond_plan_m)).abs() < 1e-3, "{palm:?}");
+    }
+
+    #[test]
+    fn closing_beside_a_thin_plate_touches_with_one_finger_only_and_is_no_contact() {
+        // A thin vertical plate beside the palm axis of a top-down hand: the
+        // approach stops on it, one finger closes on it, the others on air.
+        let robot = shipped_robot();
+        let mut scene = crate::sim::scene::Scene::new(None);
+        scene
+            .add(
+                "plate",
+                crate::quality::autograsp::tests::cuboid([0.0, 0.0, 0.0], [0.006, 0.2, 0.1]),
+                Pose::translation(0.6 + 0.03, 0.0, 0.20 - reach_ahead(&robot) + 0.02),
+            )
+            .unwrap();
+        let rig = Rig::in_world(&scene, "execute-plate");
+        let req = request(&rig.robot);
+        let report = rig.executor(&rig.arm).execute(&req);
+        assert!(report.approach_stop.as_ref().unwrap().contact, "{}", report.human());
+        let err = report.error.as_ref().expect("the plate is not grasped");
+        assert!(
+            matches!(
+                err,
+                ExecuteError::NoContact {
+                    in_contact: 1,
+                    required: 2,
+                    ..
+                }
+            ),
+            "{}",
+            report.human()
         );
     }
 

@@ -173,30 +173,39 @@ impl HandEmulator {
         self
     }
 
-    /// Before a frame: a motion command to a finger while none presses on the
-    /// object asks `feel` where the fingers stall.
+    /// Before a frame: a held object that slipped out leaves the fingers (so
+    /// the frame's answer already tells); a command that may close a finger
+    /// (CMD C, TC, IC, M; MODE 5; a new M or P) while none presses on the object
+    /// asks `feel` where the fingers stall.
     fn feel_before(&mut self, frame: &CanFrame, now: Duration) {
         let Some(feel) = self.feel.as_mut() else {
             return;
         };
+        for p in &mut self.pucks {
+            p.update(now);
+        }
+        if self.pucks.iter().any(EmulatedPuck::pressing) && !feel.still_held() {
+            tracing::info!("emulated hand: the object slipped out");
+            for p in &mut self.pucks {
+                p.contact_counts = None;
+            }
+        }
         let address = split_id(frame.id());
-        let motion = matches!(
-            decode_request(frame.data()),
-            Ok(Request::Set(id, _)) if [Property::Cmd, Property::Mode, Property::M, Property::P]
-                .iter()
-                .any(|p| p.id() == id)
-        );
+        let closing = match decode_request(frame.data()) {
+            Ok(Request::Set(id, value)) => {
+                (id == Property::Cmd.id()
+                    && [command::C, command::TC, command::IC, command::M].contains(&value))
+                    || (id == Property::Mode.id() && value == mode::TRAPEZOIDAL)
+                    || id == Property::M.id()
+                    || id == Property::P.id()
+            }
+            _ => false,
+        };
         let to_finger = self
             .pucks
             .iter()
             .any(|p| p.puck.is_finger() && p.listens_to(address));
-        if !motion || !to_finger {
-            return;
-        }
-        for p in &mut self.pucks {
-            p.update(now);
-        }
-        if self.pucks.iter().any(EmulatedPuck::pressing) {
+        if !closing || !to_finger || self.pucks.iter().any(EmulatedPuck::pressing) {
             return;
         }
         let spread_rad = self
@@ -212,8 +221,7 @@ impl HandEmulator {
         }
     }
 
-    /// After a frame: a held object that slipped out leaves the fingers; the
-    /// hand's state goes to `feel`.
+    /// After a frame: the hand's state goes to `feel`.
     fn feel_after(&mut self, now: Duration) {
         let Some(feel) = self.feel.as_mut() else {
             return;
@@ -221,14 +229,7 @@ impl HandEmulator {
         for p in &mut self.pucks {
             p.update(now);
         }
-        let mut holding = self.pucks.iter().any(EmulatedPuck::pressing);
-        if holding && !feel.still_held() {
-            tracing::info!("emulated hand: the object slipped out");
-            for p in &mut self.pucks {
-                p.contact_counts = None;
-            }
-            holding = false;
-        }
+        let holding = self.pucks.iter().any(EmulatedPuck::pressing);
         let mut pose = crate::robot::HandPose::OPEN;
         for p in &self.pucks {
             let rad = p.position / p.counts_per_rad;
