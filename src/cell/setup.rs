@@ -121,6 +121,39 @@ impl TrialSetup {
     }
 }
 
+impl TrialSetup {
+    /// Writes the trial's world as a scene file (the object at its pose; the table
+    /// left to the configuration) for the simulated devices, which reload `path`
+    /// when it changes ([`crate::sim::world::WorldWatch`]); atomically.
+    pub fn write_sim_scene(&self, path: &Path) -> Result<(), CellError> {
+        let file = crate::sim::scene::SceneFile {
+            base_from_camera: None,
+            table: None,
+            objects: vec![crate::sim::scene::ObjectEntry {
+                mesh: None,
+                scale: None,
+                category: Some(self.category),
+                seed: self.object.seed,
+                pose: self.placement.base_from_object.clone(),
+            }],
+        };
+        let text = toml::to_string(&file).map_err(|e| CellError::Setup {
+            path: path.to_path_buf(),
+            problem: e.to_string(),
+        })?;
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).map_err(|source| CellError::Io {
+                path: dir.to_path_buf(),
+                source,
+            })?;
+        }
+        crate::fsio::write_atomically(path, text.as_bytes()).map_err(|source| CellError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+}
+
 /// A placement pose: upright on the table top at `xy_m`, turned by `yaw_rad`.
 pub fn upright_pose(config: &CellConfig, xy_m: [f64; 2], yaw_rad: f64) -> PoseJson {
     PoseJson {
