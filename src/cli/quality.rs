@@ -2,9 +2,9 @@
 
 use super::bench::{cpu_ms, median, QualityMetricBenchArgs};
 use crate::config::CellConfig;
+use crate::geometry::PoseJson;
 use crate::geometry::{params_from_pose, parse_pose};
 use crate::mesh::load_mesh;
-use crate::geometry::PoseJson;
 use crate::quality::approach::{ApproachOptions, ApproachStop};
 use crate::quality::autograsp::{
     evaluate_approached_grasp, evaluate_grasp, AutoGraspOptions, FingerStop, GraspApproach,

@@ -407,13 +407,8 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         palm_speed_m_s: f64,
         guard: Option<ForceGuard>,
     ) -> Result<(MotionReport, Option<f64>), ExecuteError> {
-        let (trajectory, report) = super::motions::motion(
-            self.arm.safety(),
-            palm_speed_m_s,
-            phase,
-            waypoints,
-            path,
-        )?;
+        let (trajectory, report) =
+            super::motions::motion(self.arm.safety(), palm_speed_m_s, phase, waypoints, path)?;
         let deadline_s = trajectory.duration_s() * self.config.motion_timeout_factor
             + self.config.motion_timeout_margin_s;
         let start = self.clock.now();
@@ -851,7 +846,10 @@ mod tests {
         // (0.05 m past the grasp at z = 0.20), and the simulated robot (not the
         // driver's view) ends 0.10 m above that.
         let stop = report.approach_stop.as_ref().unwrap();
-        assert!(!stop.contact && (stop.beyond_plan_m - 0.05).abs() < 1e-3, "{stop:?}");
+        assert!(
+            !stop.contact && (stop.beyond_plan_m - 0.05).abs() < 1e-3,
+            "{stop:?}"
+        );
         let q = rig.sim_joints();
         let palm = robot.arm().palm(&q).translation.vector;
         assert!((palm.x - 0.6).abs() < 1e-3, "{palm:?}");
@@ -1104,7 +1102,12 @@ mod tests {
         // The fingertips stood on the flat face: closing jams them there at
         // once (in contact, with strain), but the grasp is not force closure,
         // so the block stays behind when the arm lifts: the grasp is lost.
-        assert_eq!(report.fingers_in_contact, Puck::FINGERS.to_vec(), "{}", report.human());
+        assert_eq!(
+            report.fingers_in_contact,
+            Puck::FINGERS.to_vec(),
+            "{}",
+            report.human()
+        );
         let err = report.error.as_ref().expect("no grasp on a flat face");
         assert!(
             matches!(err, ExecuteError::GraspLost { strain_rise: 0, .. }),
@@ -1113,7 +1116,10 @@ mod tests {
         );
         // The simulated robot itself lifted 0.10 m from where the approach stopped.
         let palm = rig.robot.arm().palm(&rig.sim_joints()).translation.vector;
-        assert!((palm.z - (0.30 - stop.beyond_plan_m)).abs() < 1e-3, "{palm:?}");
+        assert!(
+            (palm.z - (0.30 - stop.beyond_plan_m)).abs() < 1e-3,
+            "{palm:?}"
+        );
     }
 
     #[test]
@@ -1132,7 +1138,11 @@ mod tests {
         let rig = Rig::in_world(&scene, "execute-plate");
         let req = request(&rig.robot);
         let report = rig.executor(&rig.arm).execute(&req);
-        assert!(report.approach_stop.as_ref().unwrap().contact, "{}", report.human());
+        assert!(
+            report.approach_stop.as_ref().unwrap().contact,
+            "{}",
+            report.human()
+        );
         let err = report.error.as_ref().expect("the plate is not grasped");
         assert!(
             matches!(

@@ -7,9 +7,7 @@
 use super::arm::Arm;
 use crate::clock::Clock;
 use crate::hw::fri::driver::DriverCore;
-use crate::hw::fri::{
-    DriverConfig, ForceGuard, FriError, FriStatus, MeasurementDatagram, JOINTS,
-};
+use crate::hw::fri::{DriverConfig, ForceGuard, FriError, FriStatus, MeasurementDatagram, JOINTS};
 use crate::sim::fri::{FriSimulator, SimConfig};
 use crate::trajectory::Trajectory;
 use std::sync::{Arc, Mutex, MutexGuard};

@@ -72,9 +72,7 @@ pub use arm::Arm;
 pub use executor::{Executor, ExecutorConfig};
 pub use motions::{validate_grasp, GraspMotions};
 pub use path::{PathError, PathMethod, PathTolerance, StraightPath};
-pub use report::{
-    ApproachReport, ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport,
-};
+pub use report::{ApproachReport, ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
 pub use request::{ExecutionRequest, RequestError, ValidRequest};
 pub use safety::{SafeArm, SafeArmError, SafetyCheck, SafetyError, SafetyLimits};
 

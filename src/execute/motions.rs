@@ -160,7 +160,9 @@ pub fn validate_grasp(
     // The full overtravel, or as much of it as the path and the safety layer
     // allow (a quarter at a time), down to none: then the plain approach's error.
     let max = config.approach.max_overtravel_m;
-    let mut tried = [max, 0.75 * max, 0.5 * max, 0.25 * max, 0.0].into_iter().peekable();
+    let mut tried = [max, 0.75 * max, 0.5 * max, 0.25 * max, 0.0]
+        .into_iter()
+        .peekable();
     let (approach_path, approach, overtravel_m) = loop {
         let overtravel = tried.next().unwrap_or(0.0);
         let last = overtravel <= 0.0 || tried.peek().is_none();

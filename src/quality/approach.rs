@@ -207,8 +207,7 @@ mod tests {
         )
         .unwrap();
         let options = ApproachOptions::default();
-        let stop =
-            approach_to_contact(&hand, &block, &Pose::identity(), spread, &options).unwrap();
+        let stop = approach_to_contact(&hand, &block, &Pose::identity(), spread, &options).unwrap();
         assert_eq!(stop.start_collision, None);
         let contact = stop.contact.as_ref().expect("touches the block");
         assert_eq!(contact.with, Obstacle::Object);
@@ -255,7 +254,11 @@ mod tests {
             nalgebra::UnitQuaternion::from_euler_angles(std::f64::consts::PI, 0.0, 0.0),
         );
         let stop = approach_to_contact(&hand, &over_table, &down, spread, &options).unwrap();
-        assert_eq!(stop.contact.as_ref().unwrap().with, Obstacle::Table, "{stop:?}");
+        assert_eq!(
+            stop.contact.as_ref().unwrap().with,
+            Obstacle::Table,
+            "{stop:?}"
+        );
         assert!((stop.beyond_plan_m - 0.020).abs() < 1e-4, "{stop:?}");
     }
 
@@ -271,11 +274,18 @@ mod tests {
         .unwrap();
         // Planned 15 mm inside the cylinder: placed there, the open hand collides;
         // approached, it stops at the surface and grasps.
-        let inside =
-            Pose::translation(0.015, 0.0, 0.0) * crate::quality::autograsp::tests::side_pose(radius, 0.0);
+        let inside = Pose::translation(0.015, 0.0, 0.0)
+            * crate::quality::autograsp::tests::side_pose(radius, 0.0);
         let (opts, params) = (AutoGraspOptions::default(), QualityParams::default());
         let at_pose = evaluate_approached_grasp(
-            &hand, &obj, &inside, 0.0, &GraspApproach::AtPose, &opts, &params, false,
+            &hand,
+            &obj,
+            &inside,
+            0.0,
+            &GraspApproach::AtPose,
+            &opts,
+            &params,
+            false,
         )
         .unwrap();
         assert!(at_pose.outcome.collision_at_start.is_some());
@@ -297,7 +307,8 @@ mod tests {
         assert_eq!(approached.outcome.collision_at_start, None);
         assert!(approached.force_closure, "{approached:?}");
         // A pre-grasp inside the object is a collision at the start.
-        let deep = Pose::translation(0.2, 0.0, 0.0) * crate::quality::autograsp::tests::side_pose(radius, 0.0);
+        let deep = Pose::translation(0.2, 0.0, 0.0)
+            * crate::quality::autograsp::tests::side_pose(radius, 0.0);
         let e = evaluate_approached_grasp(
             &hand,
             &obj,
@@ -309,7 +320,10 @@ mod tests {
             false,
         )
         .unwrap();
-        assert!(e.outcome.collision_at_start.is_some() && e.epsilon == 0.0, "{e:?}");
+        assert!(
+            e.outcome.collision_at_start.is_some() && e.epsilon == 0.0,
+            "{e:?}"
+        );
         assert!(ApproachOptions {
             pregrasp_m: -1.0,
             max_overtravel_m: 0.05

@@ -609,7 +609,11 @@ impl EmulatedPuck {
         match Property::from_id(id) {
             Some(Property::P) => self.position.round() as i32,
             Some(Property::Sg) if self.puck.is_finger() => {
-                2000 + if self.pressing() { self.contact_strain } else { 0 }
+                2000 + if self.pressing() {
+                    self.contact_strain
+                } else {
+                    0
+                }
             }
             _ => self.props[usize::from(id & 0x7F)],
         }

@@ -155,7 +155,11 @@ impl SimWorld {
 
     /// The world of a scene file (table and camera defaults from `config`), felt
     /// by the configured hand with the configured simulated stiffness.
-    pub fn load(path: &Path, config: &CellConfig, hand: Arc<HandModel>) -> Result<SimWorld, WorldError> {
+    pub fn load(
+        path: &Path,
+        config: &CellConfig,
+        hand: Arc<HandModel>,
+    ) -> Result<SimWorld, WorldError> {
         let loaded = load_scene(path, config)?;
         SimWorld::new(
             &loaded.scene,
@@ -299,7 +303,14 @@ impl SimWorld {
             d(a).total_cmp(&d(b))
         })?;
         let pose = o.base_from_object.inverse() * base_from_palm;
-        close_hand(&self.hand, &o.object, &pose, spread_rad, &AutoGraspOptions::default()).ok()
+        close_hand(
+            &self.hand,
+            &o.object,
+            &pose,
+            spread_rad,
+            &AutoGraspOptions::default(),
+        )
+        .ok()
     }
 }
 
@@ -541,7 +552,10 @@ impl WorldWatch {
 
     /// The world now.
     pub fn get(&self) -> Option<Arc<SimWorld>> {
-        self.current.lock().unwrap_or_else(|e| e.into_inner()).clone()
+        self.current
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
     }
 }
 
@@ -686,14 +700,18 @@ mod tests {
             .link_poses(&open)
             .iter()
             .flat_map(|(link, pose)| {
-                link.shapes.iter().map(move |(local, shape)| {
-                    shape.compute_aabb(&(pose * local)).maxs.z
-                })
+                link.shapes
+                    .iter()
+                    .map(move |(local, shape)| shape.compute_aabb(&(pose * local)).maxs.z)
             })
             .fold(f64::MIN, f64::max);
         let mut scene = Scene::new(None);
         scene
-            .add("box", cuboid([0.0, 0.0, 0.0], [0.4, 0.4, 0.1]), Pose::translation(0.6, 0.0, 0.25))
+            .add(
+                "box",
+                cuboid([0.0, 0.0, 0.0], [0.4, 0.4, 0.1]),
+                Pose::translation(0.6, 0.0, 0.25),
+            )
             .unwrap();
         let world = SimWorld::new(&scene, Arc::clone(&hand), 2e4).unwrap();
         let down = |z: f64| {
@@ -709,11 +727,18 @@ mod tests {
         // one link's 2 mm at least, at most every link's.
         let links = hand.link_poses(&open).len() as f64;
         assert!(ft[0].abs() < 1e-6 && ft[1].abs() < 1e-6, "{ft:?}");
-        assert!(ft[2] < -40.0 + 1e-6 && ft[2] > -40.0 * links - 1e-6, "{ft:?}");
+        assert!(
+            ft[2] < -40.0 + 1e-6 && ft[2] > -40.0 * links - 1e-6,
+            "{ft:?}"
+        );
         // A table under the hand pushes up too.
         let mut on_table = Scene::new(Some(table()));
         on_table
-            .add("far", cuboid([0.0; 3], [0.01; 3]), Pose::translation(2.0, 0.0, 0.0))
+            .add(
+                "far",
+                cuboid([0.0; 3], [0.01; 3]),
+                Pose::translation(2.0, 0.0, 0.0),
+            )
             .unwrap();
         let world = SimWorld::new(&on_table, hand, 2e4).unwrap();
         let ft = world.tcp_wrench(&down(reach - 0.001), &open);
@@ -730,13 +755,18 @@ mod tests {
 
     /// The hand driver on a virtual bus with an emulator feeling `world` at the
     /// palm pose published on `link`.
-    fn hand_in(world: SimWorld, link: &WorldLink, name: &str) -> (Hand<Box<dyn CanBus>>, crate::sim::puck::EmulatorThread) {
+    fn hand_in(
+        world: SimWorld,
+        link: &WorldLink,
+        name: &str,
+    ) -> (Hand<Box<dyn CanBus>>, crate::sim::puck::EmulatorThread) {
         let bus = VirtualBus::new(name);
         let node = bus.endpoint();
         let probe = node.idle_probe();
-        let clock: Arc<dyn crate::clock::Clock> = Arc::new(ManualClock::new().with_settle(move || {
-            probe.wait_idle(Duration::from_secs(5));
-        }));
+        let clock: Arc<dyn crate::clock::Clock> =
+            Arc::new(ManualClock::new().with_settle(move || {
+                probe.wait_idle(Duration::from_secs(5));
+            }));
         let feel = HandContact::new(WorldWatch::fixed(Some(world)), link.clone());
         let emulator = HandEmulator::new(HandEmulatorConfig::default(), Arc::clone(&clock))
             .unwrap()
@@ -775,17 +805,18 @@ mod tests {
         let (lo, hi) = mesh
             .vertices
             .iter()
-            .fold((f64::MAX, f64::MIN), |(lo, hi), v| (lo.min(v.z), hi.max(v.z)));
-        let side = nalgebra::Rotation3::from_basis_unchecked(&[
-            Vector3::z(),
-            -Vector3::y(),
-            Vector3::x(),
-        ]);
+            .fold((f64::MAX, f64::MIN), |(lo, hi), v| {
+                (lo.min(v.z), hi.max(v.z))
+            });
+        let side =
+            nalgebra::Rotation3::from_basis_unchecked(&[Vector3::z(), -Vector3::y(), Vector3::x()]);
         let planned = Pose::from_parts(
             Translation3::new(-0.12, 0.0, (hi - 0.02).max(0.5 * (lo + hi))),
             UnitQuaternion::from_rotation_matrix(&side),
         );
-        let object = GraspObject::new(&mesh, Path::new("mug")).unwrap().with_table(Some(0.0));
+        let object = GraspObject::new(&mesh, Path::new("mug"))
+            .unwrap()
+            .with_table(Some(0.0));
         let spread = 0.0;
         let stop = approach_to_contact(
             &hand_model,
@@ -820,7 +851,10 @@ mod tests {
         let positions = hand.positions(t).unwrap();
         let strain = hand.strain(t).unwrap();
         for i in 0..3 {
-            let o = outcomes.iter().find(|o| o.puck == Puck::FINGERS[i]).unwrap();
+            let o = outcomes
+                .iter()
+                .find(|o| o.puck == Puck::FINGERS[i])
+                .unwrap();
             if touching.contains(&i) {
                 assert!(!o.reached_target, "F{}: {o:?}", i + 1);
                 assert!(
@@ -837,7 +871,10 @@ mod tests {
         }
         // The hand told the arm's side that it holds the object.
         assert!(link.hand().holding);
-        assert!((link.hand().pose.flex_rad[touching[0]] - positions.fingers_rad[touching[0]]).abs() < 2e-3);
+        assert!(
+            (link.hand().pose.flex_rad[touching[0]] - positions.fingers_rad[touching[0]]).abs()
+                < 2e-3
+        );
     }
 
     #[test]

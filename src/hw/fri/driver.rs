@@ -678,7 +678,10 @@ impl DriverCore {
             return;
         };
         let f = tcp_force(m);
-        let force_n = (0..3).map(|i| (f[i] - start[i]).powi(2)).sum::<f64>().sqrt();
+        let force_n = (0..3)
+            .map(|i| (f[i] - start[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
         if force_n > guard.threshold_n {
             let (id, threshold_n) = (*id, guard.threshold_n);
             self.brake();
@@ -1068,7 +1071,9 @@ impl FriDriver {
         trajectory: Trajectory<JOINTS>,
         guard: ForceGuard,
     ) -> Result<u64, FriError> {
-        self.shared.lock().start_guarded_trajectory(trajectory, guard)
+        self.shared
+            .lock()
+            .start_guarded_trajectory(trajectory, guard)
     }
 
     /// Waits for motion `id` to end and returns how it ended. On timeout the motion
