@@ -134,7 +134,7 @@ impl TrialSetup {
                 scale: None,
                 category: Some(self.category),
                 seed: self.object.seed,
-                pose: self.placement.base_from_object.clone(),
+                pose: self.placement.base_from_object,
             }],
         };
         let text = toml::to_string(&file).map_err(|e| CellError::Setup {

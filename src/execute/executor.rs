@@ -1089,7 +1089,10 @@ mod tests {
         let rig = Rig::in_world(&scene, "execute-block");
         let req = request(&rig.robot);
         let report = rig.executor(&rig.arm).execute(&req);
-        let stop = report.approach_stop.as_ref().expect(&report.human());
+        let stop = report
+            .approach_stop
+            .as_ref()
+            .unwrap_or_else(|| panic!("{}", report.human()));
         assert!(stop.contact, "{stop:?}");
         assert!(stop.contact_force_n.unwrap() > 10.0, "{stop:?}");
         // First contact at 30 mm; the force reaches 10 N within 0.5 mm of
