@@ -133,6 +133,10 @@ pub struct CellConfig {
     pub fri: FriConfig,
     /// The hand's CAN bus.
     pub can: CanConfig,
+    /// Approach to contact: shared by the executor's guarded move and every grasp
+    /// simulation (absent: the defaults).
+    #[serde(default)]
+    pub approach: ApproachConfig,
 }
 
 /// The robot description.
@@ -263,6 +267,56 @@ pub struct CanConfig {
     pub reply_timeout_s: f64,
 }
 
+/// Approach to contact (GraspIt!'s rule, on the robot a guarded move): from the
+/// pre-grasp (`robot.pregrasp_offset_m` back along the palm's -z) the palm moves
+/// along its approach axis (+z) through the planned pose, at most
+/// `max_overtravel_m` beyond it, and stops at first contact; then the hand closes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ApproachConfig {
+    /// Farthest the palm goes beyond the planned pose (m).
+    #[serde(default = "default_max_overtravel_m")]
+    pub max_overtravel_m: f64,
+    /// Estimated external force at the tool (FRI `estExtTcpFT`, magnitude of its
+    /// force part, over its value when the approach began) that counts as contact (N).
+    #[serde(default = "default_contact_force_n")]
+    pub contact_force_n: f64,
+    /// Peak palm speed of the guarded approach (m/s; at most `limits.palm_speed_m_s`).
+    #[serde(default = "default_approach_speed_m_s")]
+    pub speed_m_s: f64,
+    /// Stiffness of the simulated contact (`cell-sim-arm`): the force is the hand's
+    /// penetration into the object or the table times this (N/m).
+    #[serde(default = "default_sim_contact_stiffness_n_per_m")]
+    pub sim_contact_stiffness_n_per_m: f64,
+}
+
+fn default_max_overtravel_m() -> f64 {
+    0.05
+}
+
+fn default_contact_force_n() -> f64 {
+    10.0
+}
+
+fn default_approach_speed_m_s() -> f64 {
+    0.05
+}
+
+fn default_sim_contact_stiffness_n_per_m() -> f64 {
+    20_000.0
+}
+
+impl Default for ApproachConfig {
+    fn default() -> Self {
+        ApproachConfig {
+            max_overtravel_m: default_max_overtravel_m(),
+            contact_force_n: default_contact_force_n(),
+            speed_m_s: default_approach_speed_m_s(),
+            sim_contact_stiffness_n_per_m: default_sim_contact_stiffness_n_per_m(),
+        }
+    }
+}
+
 impl CellConfig {
     /// Loads and validates a configuration file; relative paths become relative to it.
     /// [`BUILTIN_CONFIG`] is the shipped configuration with the built-in URDF.
@@ -330,6 +384,13 @@ impl CellConfig {
             ("fri.cycle_s", self.fri.cycle_s),
             ("fri.timeout_s", self.fri.timeout_s),
             ("can.reply_timeout_s", self.can.reply_timeout_s),
+            ("robot.pregrasp_offset_m", self.robot.pregrasp_offset_m),
+            ("approach.contact_force_n", self.approach.contact_force_n),
+            ("approach.speed_m_s", self.approach.speed_m_s),
+            (
+                "approach.sim_contact_stiffness_n_per_m",
+                self.approach.sim_contact_stiffness_n_per_m,
+            ),
         ];
         for (field, value) in positive {
             if !(value.is_finite() && value > 0.0) {
@@ -339,6 +400,14 @@ impl CellConfig {
                     "must be a finite number > 0",
                 ));
             }
+        }
+        let overtravel = self.approach.max_overtravel_m;
+        if !(overtravel.is_finite() && overtravel >= 0.0) {
+            return Err(invalid(
+                "approach.max_overtravel_m",
+                overtravel.to_string(),
+                "must be a finite number >= 0",
+            ));
         }
         if self.limits.joint_velocity_scale > 1.0 {
             return Err(invalid(

@@ -49,6 +49,16 @@ struct Args {
     /// monitor mode it asks for command mode again (granted once quality is PERFECT).
     #[arg(long)]
     restart_after_drop: bool,
+    /// Scene file (`cell camera render` format) of the objects the hand meets:
+    /// `estExtTcpFT` becomes their contact force on the hand (penetration times
+    /// approach.sim_contact_stiffness_n_per_m). Reloaded whenever it changes;
+    /// needs --config.
+    #[arg(long, requires = "config")]
+    scene: Option<PathBuf>,
+    /// Directory of the state shared with `cell-sim-hand` (palm pose out, hand
+    /// joints in); default: the scene file's directory.
+    #[arg(long, requires = "scene")]
+    state_dir: Option<PathBuf>,
     /// Stop after this many seconds; runs until killed if not given.
     #[arg(long)]
     seconds: Option<f64>,
@@ -93,7 +103,23 @@ fn run(args: Args) -> anyhow::Result<()> {
             "--seconds {seconds}: must be a finite number > 0"
         );
     }
-    let sim = Mutex::new(FriSimulator::new(config)?);
+    let mut sim = FriSimulator::new(config)?;
+    if let (Some(scene), Some(path)) = (&args.scene, &args.config) {
+        use graspcell::sim::world::{ArmContact, WorldLink, WorldWatch};
+        let cell = graspcell::config::CellConfig::load(path)?;
+        let robot = std::sync::Arc::new(graspcell::robot::Robot::load(&cell)?);
+        let hand = std::sync::Arc::new(graspcell::robot::hand::HandModel::load(&cell)?);
+        let dir = args
+            .state_dir
+            .clone()
+            .or_else(|| scene.parent().map(PathBuf::from))
+            .unwrap_or_default();
+        let link = WorldLink::files(&dir)?;
+        let world = WorldWatch::scene_file(scene.clone(), cell, hand, Duration::from_millis(50));
+        sim.set_external_force(Some(Box::new(ArmContact::new(robot, world, link))));
+        tracing::info!(scene = %scene.display(), state = %dir.display(), "contact forces from the scene");
+    }
+    let sim = Mutex::new(sim);
     let socket = UdpSocket::bind(args.bind).with_context(|| format!("bind {}", args.bind))?;
     tracing::info!(
         "cell-sim-arm: robot at {} sending to {} every {} ms",

@@ -28,8 +28,22 @@ struct Args {
     #[arg(long, value_name = "FILE")]
     candump: Option<PathBuf>,
     /// Object contact: proximal joint angles (rad) of F1,F2,F3 where closing stalls.
-    #[arg(long, value_name = "F1,F2,F3")]
+    #[arg(long, value_name = "F1,F2,F3", conflicts_with = "scene")]
     contact_rad: Option<String>,
+    /// Cell configuration (hand model, table), for --scene.
+    #[arg(long, value_name = "CELL_TOML")]
+    config: Option<PathBuf>,
+    /// Scene file (`cell camera render` format) of the objects the hand feels:
+    /// each finger stalls where the grasp simulator closes it on the object at
+    /// the palm pose `cell-sim-arm` publishes, or runs to its limit on air; an
+    /// object not held in force closure slips out when the arm moves away.
+    /// Reloaded whenever it changes; needs --config.
+    #[arg(long, requires = "config")]
+    scene: Option<PathBuf>,
+    /// Directory of the state shared with `cell-sim-arm` (palm pose in, hand
+    /// joints out); default: the scene file's directory.
+    #[arg(long, requires = "scene")]
+    state_dir: Option<PathBuf>,
     /// A puck that is absent and never answers (F1, F2, F3 or spread); repeatable.
     #[arg(long, value_name = "PUCK")]
     absent: Vec<String>,
@@ -74,6 +88,19 @@ fn run(args: Args) -> anyhow::Result<()> {
     );
     config.boot = Duration::from_secs_f64(args.boot_s);
     let mut emulator = HandEmulator::new(config, Arc::new(SystemClock::new()))?;
+    if let (Some(scene), Some(path)) = (&args.scene, &args.config) {
+        use graspcell::sim::world::{HandContact, WorldLink, WorldWatch};
+        let cell = graspcell::config::CellConfig::load(path)?;
+        let hand = Arc::new(graspcell::robot::hand::HandModel::load(&cell)?);
+        let dir = args
+            .state_dir
+            .clone()
+            .or_else(|| scene.parent().map(PathBuf::from))
+            .unwrap_or_default();
+        let link = WorldLink::files(&dir)?;
+        let world = WorldWatch::scene_file(scene.clone(), cell, hand, Duration::from_millis(50));
+        emulator = emulator.with_feel(Box::new(HandContact::new(world, link)));
+    }
     let mut bus = open_bus_logged(&args.interface, args.candump.as_deref())?;
     println!("ready {}", args.interface);
     std::io::stdout().flush()?;

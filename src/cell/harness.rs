@@ -221,14 +221,18 @@ impl Cell {
 
     fn start_all(&mut self) -> Result<(), CellError> {
         if self.options.simulated_devices {
+            // The simulated devices feel the trial's object: a scene file per
+            // trial (run_trial) and their shared state, in <run dir>/sim/.
+            let _ = std::fs::remove_file(self.sim_scene_path());
             let hand_args = vec![
                 "--interface".to_string(),
                 self.can_interface.clone(),
-                "--contact-rad".into(),
-                "1.0,1.0,1.0".into(),
                 "--boot-s".into(),
                 "0.05".into(),
-            ];
+            ]
+            .into_iter()
+            .chain(self.sim_world_args())
+            .collect::<Vec<String>>();
             let mut hand = spawn(&self.options.bin_dir, "cell-sim-hand", &hand_args, true)?;
             // The emulator hosts the virtual bus: wait for its "ready" line.
             let mut line = String::new();
@@ -284,14 +288,15 @@ impl Cell {
             let arm_args = vec![
                 "--pc-addr".to_string(),
                 self.fri_addr.clone(),
-                "--config".into(),
-                self.options.stage.config.display().to_string(),
                 "--initial-joints".into(),
                 home.join(","),
                 "--cycle-ms".into(),
                 (self.fri_cycle_s * 1e3).to_string(),
                 "--restart-after-drop".into(),
-            ];
+            ]
+            .into_iter()
+            .chain(self.sim_world_args())
+            .collect::<Vec<String>>();
             let arm = spawn(&self.options.bin_dir, "cell-sim-arm", &arm_args, false)?;
             self.sims.push(Process {
                 name: "cell-sim-arm".into(),
@@ -344,6 +349,24 @@ impl Cell {
             },
             waited_s: timeout.as_secs_f64(),
         })
+    }
+
+    /// The scene file the simulated devices feel.
+    fn sim_scene_path(&self) -> PathBuf {
+        self.options.stage.run_dir.join("sim").join("scene.toml")
+    }
+
+    /// `--config --scene --state-dir` of the simulated devices.
+    fn sim_world_args(&self) -> Vec<String> {
+        let dir = self.options.stage.run_dir.join("sim");
+        vec![
+            "--config".into(),
+            self.options.stage.config.display().to_string(),
+            "--scene".into(),
+            self.sim_scene_path().display().to_string(),
+            "--state-dir".into(),
+            dir.display().to_string(),
+        ]
     }
 
     fn stage_args(&self, stage: &str) -> Vec<String> {
@@ -499,6 +522,9 @@ impl Cell {
     ) -> Result<Option<TrialResult>, CellError> {
         if let Some(setup) = setup {
             setup.write(&self.options.stage.run_dir)?;
+            if self.options.simulated_devices {
+                setup.write_sim_scene(&self.sim_scene_path())?;
+            }
         }
         let request = TrialRequest::new(trial_id, monotonic_now_ns(), category, task, method)?;
         let operator = self

@@ -225,6 +225,53 @@ pub fn novel_object_in(
     }
 }
 
+impl TrialSetup {
+    /// Writes the trial's world as a scene file (the object at its pose; the table
+    /// left to the configuration) for the simulated devices, which reload `path`
+    /// when it changes ([`crate::sim::world::WorldWatch`]); atomically.
+    /// A training-family object is named by category and seed; any other (held-apart,
+    /// a user's mesh) is written next to the scene as `object-<trial id>.ply`.
+    pub fn write_sim_scene(&self, path: &Path) -> Result<(), CellError> {
+        let dir = path.parent().unwrap_or(Path::new("."));
+        std::fs::create_dir_all(dir).map_err(|source| CellError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let (mesh, category, seed) = match self.source {
+            ObjectSource::Training => (None, Some(self.category), self.object.seed),
+            _ => {
+                let name = PathBuf::from(format!("object-{}.ply", self.trial_id));
+                crate::mesh::write_mesh(&dir.join(&name), &self.mesh()?).map_err(|e| {
+                    CellError::Setup {
+                        path: dir.join(&name),
+                        problem: e.to_string(),
+                    }
+                })?;
+                (Some(name), None, None)
+            }
+        };
+        let file = crate::sim::scene::SceneFile {
+            base_from_camera: None,
+            table: None,
+            objects: vec![crate::sim::scene::ObjectEntry {
+                mesh,
+                scale: None,
+                category,
+                seed,
+                pose: self.placement.base_from_object,
+            }],
+        };
+        let text = toml::to_string(&file).map_err(|e| CellError::Setup {
+            path: path.to_path_buf(),
+            problem: e.to_string(),
+        })?;
+        crate::fsio::write_atomically(path, text.as_bytes()).map_err(|source| CellError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+}
+
 /// A placement pose: upright on the table top at `xy_m`, turned by `yaw_rad`.
 pub fn upright_pose(config: &CellConfig, xy_m: [f64; 2], yaw_rad: f64) -> PoseJson {
     PoseJson {

@@ -2,10 +2,13 @@
 
 use super::bench::{cpu_ms, median, QualityMetricBenchArgs};
 use crate::config::CellConfig;
+use crate::geometry::PoseJson;
 use crate::geometry::{params_from_pose, parse_pose};
 use crate::mesh::load_mesh;
+use crate::quality::approach::{ApproachOptions, ApproachStop};
 use crate::quality::autograsp::{
-    evaluate_grasp, AutoGraspOptions, FingerStop, GraspObject, StartCollision,
+    evaluate_approached_grasp, evaluate_grasp, AutoGraspOptions, FingerStop, GraspApproach,
+    GraspObject, Obstacle, StartCollision,
 };
 use crate::quality::stability::{stability_range, StabilityOptions, StabilityRange};
 use crate::quality::{self, gws, wrench, Contact, GraspQuality, QualityParams};
@@ -53,6 +56,13 @@ pub struct QualityArgs {
     /// Also compute the stability ranges (Delta, sigma per DOF) for --object.
     #[arg(long, requires = "object")]
     pub stability: bool,
+    /// Approach to contact before closing (as the executor does): from the
+    /// pre-grasp (robot.pregrasp_offset_m back along the palm's -z) the open hand
+    /// moves along +z through --pose, at most approach.max_overtravel_m beyond it,
+    /// and stops at first contact. Without it the hand closes at --pose (the
+    /// paper's setting).
+    #[arg(long, requires = "object")]
+    pub approach_to_contact: bool,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -143,6 +153,9 @@ struct AutoGraspReport {
     stops: [FingerStop; 3],
     #[serde(skip_serializing_if = "Option::is_none")]
     stability: Option<StabilityRange>,
+    /// Where the palm stopped, with --approach-to-contact.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    approach: Option<ApproachStop>,
 }
 
 fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Result<ExitCode> {
@@ -157,11 +170,17 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
         mu: args.mu,
         ..QualityParams::default()
     };
-    let e = evaluate_grasp(
+    let approach = if args.approach_to_contact {
+        GraspApproach::ToContact(ApproachOptions::from_cell(&config))
+    } else {
+        GraspApproach::AtPose
+    };
+    let e = evaluate_approached_grasp(
         &hand,
         &grasp_object,
         &pose,
         args.spread,
+        &approach,
         &options,
         &params,
         true,
@@ -201,9 +220,32 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
         distal_rad: o.distal_rad,
         stops: o.stops,
         stability,
+        approach: e.approach,
     };
     super::emit(args.json, &report, |r: &AutoGraspReport| {
-        let mut text = match &r.start_collision {
+        let mut text = match &r.approach {
+            Some(a) => {
+                let p = PoseJson::from(&a.object_from_palm);
+                format!(
+                    "approach: palm stopped at {:.4},{:.4},{:.4} m ({:+.1} mm beyond --pose, {:.1} mm from the pre-grasp): {}\n",
+                    p.xyz[0],
+                    p.xyz[1],
+                    p.xyz[2],
+                    1e3 * a.beyond_plan_m,
+                    1e3 * a.travel_m,
+                    match (&a.start_collision, &a.contact) {
+                        (Some(c), _) => format!("the pre-grasp collides: {c}"),
+                        (None, Some(c)) => format!("first contact: link {} with the {}", c.link, match c.with {
+                            Obstacle::Table => "table",
+                            _ => "object",
+                        }),
+                        (None, None) => "no contact within the overtravel".to_string(),
+                    }
+                )
+            }
+            None => String::new(),
+        };
+        text += &match &r.start_collision {
             Some(c) => format!("invalid start: {c}\n"),
             None => format!(
                 "epsilon {:.6}, volume {:.6e}, force closure: {}, {} contacts\n",

@@ -2,7 +2,7 @@
 //! the safety layer wraps any implementation (the FRI driver on the cell; a
 //! simulated link in tests).
 
-use crate::hw::fri::{FriDriver, FriError, FriStatus, JOINTS};
+use crate::hw::fri::{ForceGuard, FriDriver, FriError, FriStatus, JOINTS};
 use crate::trajectory::Trajectory;
 
 /// A joint-position-controlled arm that follows time-parametrised trajectories.
@@ -16,6 +16,14 @@ pub trait Arm {
     /// Starts following `trajectory` (it must start at the commanded position);
     /// returns the motion's id.
     fn start_trajectory(&self, trajectory: Trajectory<JOINTS>) -> Result<u64, FriError>;
+    /// Starts following `trajectory` guarded by `guard`: the arm stops (decelerates,
+    /// then holds) when the estimated external TCP force exceeds the guard's
+    /// threshold, and the motion ends with [`FriError::Contact`].
+    fn start_guarded_trajectory(
+        &self,
+        trajectory: Trajectory<JOINTS>,
+        guard: ForceGuard,
+    ) -> Result<u64, FriError>;
     /// How motion `id` ended, or `None` while it runs.
     fn motion_outcome(&self, id: u64) -> Option<Result<(), FriError>>;
     /// Ends any motion: decelerate within the trajectory's limits, then hold.
@@ -29,6 +37,14 @@ impl Arm for FriDriver {
 
     fn start_trajectory(&self, trajectory: Trajectory<JOINTS>) -> Result<u64, FriError> {
         FriDriver::start_trajectory(self, trajectory)
+    }
+
+    fn start_guarded_trajectory(
+        &self,
+        trajectory: Trajectory<JOINTS>,
+        guard: ForceGuard,
+    ) -> Result<u64, FriError> {
+        FriDriver::start_guarded_trajectory(self, trajectory, guard)
     }
 
     fn motion_outcome(&self, id: u64) -> Option<Result<(), FriError>> {
@@ -47,6 +63,14 @@ impl<A: Arm + ?Sized> Arm for &A {
 
     fn start_trajectory(&self, trajectory: Trajectory<JOINTS>) -> Result<u64, FriError> {
         (**self).start_trajectory(trajectory)
+    }
+
+    fn start_guarded_trajectory(
+        &self,
+        trajectory: Trajectory<JOINTS>,
+        guard: ForceGuard,
+    ) -> Result<u64, FriError> {
+        (**self).start_guarded_trajectory(trajectory, guard)
     }
 
     fn motion_outcome(&self, id: u64) -> Option<Result<(), FriError>> {

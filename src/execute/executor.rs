@@ -2,17 +2,19 @@
 //! [`crate::execute`].
 
 use super::arm::Arm;
-use super::motions::{lifted, validate_grasp, GraspMotions};
+use super::motions::{advanced, approach_speed_m_s, lifted, validate_grasp, GraspMotions};
 use super::path::{straight_line, PathTolerance, StraightPath};
-use super::report::{ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
+use super::report::{
+    ApproachReport, ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport,
+};
 use super::request::ExecutionRequest;
 use super::safety::{SafeArm, SafeArmError, SafetyLimits};
 use super::{ExecuteError, Phase};
 use crate::clock::Clock;
-use crate::config::CellConfig;
+use crate::config::{ApproachConfig, CellConfig};
 use crate::geometry::PoseJson;
 use crate::hw::can::CanBus;
-use crate::hw::fri::{FriError, FriState, FriStatus};
+use crate::hw::fri::{ForceGuard, FriError, FriState, FriStatus};
 use crate::hw::hand::{Hand, HandPositions, Puck};
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, Robot};
@@ -56,6 +58,8 @@ pub struct ExecutorConfig {
     pub plan_tolerance_m: f64,
     /// Largest rotation between the palm at the planner's joints and its pose (rad).
     pub plan_tolerance_rad: f64,
+    /// Approach to contact: overtravel, contact force, speed.
+    pub approach: ApproachConfig,
 }
 
 impl Default for ExecutorConfig {
@@ -78,6 +82,7 @@ impl Default for ExecutorConfig {
             path: PathTolerance::default(),
             plan_tolerance_m: 1e-3,
             plan_tolerance_rad: 0.01,
+            approach: ApproachConfig::default(),
         }
     }
 }
@@ -87,6 +92,7 @@ impl ExecutorConfig {
     pub fn from_cell(config: &CellConfig) -> ExecutorConfig {
         ExecutorConfig {
             palm_speed_m_s: config.limits.palm_speed_m_s,
+            approach: config.approach.clone(),
             ..ExecutorConfig::default()
         }
     }
@@ -278,22 +284,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             Ok(())
         })?;
         self.phase(Phase::Approach, report, began, observer, |ex, report| {
-            let start = ex.commanded();
-            let path = straight_line(
-                &ex.robot,
-                &start,
-                &plan.request.palm,
-                Some(&plan.request.joints_rad),
-                &ex.config.path,
-            )
-            .map_err(|source| ExecuteError::Path {
-                phase: Phase::Approach,
-                motion: "approach",
-                source,
-            })?;
-            report.approach =
-                Some(ex.move_along(Phase::Approach, "approach", &path.waypoints, Some(&path))?);
-            Ok(())
+            ex.approach(&plan, report)
         })?;
         let contacts = self.phase(Phase::Close, report, began, observer, |ex, report| {
             ex.close(report)
@@ -314,6 +305,54 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         self.phase(Phase::Hold, report, began, observer, |ex, report| {
             ex.hold(&contacts, report)
         })
+    }
+
+    /// The guarded approach from where the arm is through the grasp to the end
+    /// of the overtravel; returns once the arm is at rest, on contact or at the
+    /// end.
+    fn approach(
+        &mut self,
+        plan: &GraspMotions,
+        report: &mut ExecutionReport,
+    ) -> Result<(), ExecuteError> {
+        const PHASE: Phase = Phase::Approach;
+        let start = self.commanded();
+        let end = advanced(&plan.request.palm, plan.overtravel_m);
+        let path = straight_line(
+            &self.robot,
+            &start,
+            &end,
+            Some(&plan.approach_end_rad),
+            &self.config.path,
+        )
+        .map_err(|source| ExecuteError::Path {
+            phase: PHASE,
+            motion: "approach",
+            source,
+        })?;
+        let guard = ForceGuard {
+            threshold_n: self.config.approach.contact_force_n,
+        };
+        let (motion, force_n) = self.move_along_guarded(
+            PHASE,
+            "approach",
+            &path.waypoints,
+            Some(&path),
+            approach_speed_m_s(&self.config),
+            Some(guard),
+        )?;
+        report.approach = Some(motion);
+        // At rest where the arm stopped: how far along the approach axis.
+        let palm = self.robot.arm().palm(&self.arm.arm().status().measured_rad);
+        let beyond_plan_m = (plan.request.palm.inverse() * palm).translation.z;
+        report.approach_stop = Some(ApproachReport {
+            overtravel_m: plan.overtravel_m,
+            contact: force_n.is_some(),
+            contact_force_n: force_n,
+            beyond_plan_m,
+        });
+        tracing::info!(contact = force_n.is_some(), beyond_plan_m, "approach ended");
+        Ok(())
     }
 
     /// The joints the arm is commanded to now.
@@ -351,12 +390,33 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         waypoints: &[ArmJoints],
         path: Option<&StraightPath>,
     ) -> Result<MotionReport, ExecuteError> {
+        let speed = self.config.palm_speed_m_s;
+        self.move_along_guarded(phase, motion, waypoints, path, speed, None)
+            .map(|(report, _)| report)
+    }
+
+    /// [`Self::move_along`] at most at `palm_speed_m_s` on straight paths, and with
+    /// `guard`: a motion stopped on contact ends well, once the arm is at rest,
+    /// with the force that stopped it.
+    fn move_along_guarded(
+        &mut self,
+        phase: Phase,
+        motion: &'static str,
+        waypoints: &[ArmJoints],
+        path: Option<&StraightPath>,
+        palm_speed_m_s: f64,
+        guard: Option<ForceGuard>,
+    ) -> Result<(MotionReport, Option<f64>), ExecuteError> {
         let (trajectory, report) =
-            super::motions::motion(self.arm.safety(), &self.config, phase, waypoints, path)?;
+            super::motions::motion(self.arm.safety(), palm_speed_m_s, phase, waypoints, path)?;
         let deadline_s = trajectory.duration_s() * self.config.motion_timeout_factor
             + self.config.motion_timeout_margin_s;
         let start = self.clock.now();
-        let id = self.arm.start_trajectory(trajectory).map_err(|e| match e {
+        let started = match guard {
+            Some(guard) => self.arm.start_guarded_trajectory(trajectory, guard),
+            None => self.arm.start_trajectory(trajectory),
+        };
+        let id = started.map_err(|e| match e {
             SafeArmError::Unsafe(source) => ExecuteError::Unsafe {
                 phase,
                 motion,
@@ -364,11 +424,22 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             },
             SafeArmError::Arm(source) => ExecuteError::from_arm(phase, source),
         })?;
+        let mut contact_n = None;
         loop {
-            if let Some(outcome) = self.arm.arm().motion_outcome(id) {
-                return outcome
-                    .map(|()| report)
-                    .map_err(|e| ExecuteError::from_arm(phase, e));
+            match self.arm.arm().motion_outcome(id) {
+                Some(Err(FriError::Contact { force_n, .. })) if guard.is_some() => {
+                    contact_n = Some(force_n);
+                    // Braking: done once the arm is at rest.
+                    if !self.arm.arm().status().moving {
+                        return Ok((report, contact_n));
+                    }
+                }
+                Some(outcome) if contact_n.is_none() => {
+                    return outcome
+                        .map(|()| (report, None))
+                        .map_err(|e| ExecuteError::from_arm(phase, e));
+                }
+                _ => {}
             }
             let elapsed_s = secs(self.clock.now().saturating_sub(start));
             if elapsed_s > deadline_s {
@@ -602,7 +673,7 @@ mod tests {
     use crate::clock::ManualClock;
     use crate::execute::lockstep::LockstepArm;
     use crate::execute::SafetyError;
-    use crate::geometry::pose_from_params;
+    use crate::geometry::{pose_from_params, Pose};
     use crate::hw::can::{CanBus, VirtualBus};
     use crate::hw::fri::JOINTS;
     use crate::hw::fri::{FriStatus, Quality};
@@ -651,15 +722,44 @@ mod tests {
 
     impl Rig {
         fn new(emulator: HandEmulatorConfig) -> Rig {
-            let bus = VirtualBus::new("execute-unit");
+            Rig::build(emulator, None)
+        }
+
+        /// Arm and hand in a simulated world of `scene`: the arm simulator reports
+        /// its contact force, the hand emulator stalls where the grasp simulator
+        /// closes on it.
+        fn in_world(scene: &crate::sim::scene::Scene, name: &str) -> Rig {
+            Rig::build(HandEmulatorConfig::default(), Some((scene, name)))
+        }
+
+        fn build(
+            emulator: HandEmulatorConfig,
+            world: Option<(&crate::sim::scene::Scene, &str)>,
+        ) -> Rig {
+            use crate::sim::world::{ArmContact, HandContact, SimWorld, WorldLink, WorldWatch};
+            let robot = Arc::new(shipped_robot());
+            let link = WorldLink::memory();
+            let watch = world.map(|(scene, _)| {
+                let hand = crate::robot::hand::HandModel::from_description(
+                    &robot.description,
+                    "bh_palm",
+                    std::path::Path::new("shipped"),
+                )
+                .unwrap();
+                WorldWatch::fixed(Some(SimWorld::new(scene, Arc::new(hand), 2e4).unwrap()))
+            });
+            let bus = VirtualBus::new(world.map_or("execute-unit", |w| w.1));
             let node = bus.endpoint();
             let probe = node.idle_probe();
             let clock: Arc<dyn Clock> = Arc::new(ManualClock::new().with_settle(move || {
                 probe.wait_idle(Duration::from_secs(5));
             }));
-            let emulator = HandEmulator::new(emulator, Arc::clone(&clock))
-                .unwrap()
-                .spawn(node);
+            let mut emulator = HandEmulator::new(emulator, Arc::clone(&clock)).unwrap();
+            if let Some(watch) = &watch {
+                emulator =
+                    emulator.with_feel(Box::new(HandContact::new(watch.clone(), link.clone())));
+            }
+            let emulator = emulator.spawn(node);
             let hand = Hand::new(
                 Box::new(bus.endpoint()) as Box<dyn CanBus>,
                 Arc::clone(&clock),
@@ -673,11 +773,15 @@ mod tests {
                 0.1,
                 Arc::clone(&clock),
             );
+            if let Some(watch) = watch {
+                let contact = ArmContact::new(Arc::clone(&robot), watch, link);
+                arm.with_sim(|s| s.set_external_force(Some(Box::new(contact))));
+            }
             Rig {
                 arm,
                 hand: std::cell::RefCell::new(Some(hand)),
                 clock,
-                robot: Arc::new(shipped_robot()),
+                robot,
                 _emulator: emulator,
             }
         }
@@ -740,12 +844,19 @@ mod tests {
         assert!(report.phases.iter().all(|p| p.ok));
         let hold = report.phases.last().unwrap();
         assert!(hold.duration_s >= 2.0, "{hold:?}");
-        // The simulated robot (not the driver's view) ends 0.10 m above the grasp.
+        // Nothing in the arm's world: the approach went the whole overtravel
+        // (0.05 m past the grasp at z = 0.20), and the simulated robot (not the
+        // driver's view) ends 0.10 m above that.
+        let stop = report.approach_stop.as_ref().unwrap();
+        assert!(
+            !stop.contact && (stop.beyond_plan_m - 0.05).abs() < 1e-3,
+            "{stop:?}"
+        );
         let q = rig.sim_joints();
         let palm = robot.arm().palm(&q).translation.vector;
         assert!((palm.x - 0.6).abs() < 1e-3, "{palm:?}");
         assert!(palm.y.abs() < 1e-3, "{palm:?}");
-        assert!((palm.z - 0.30).abs() < 1e-3, "{palm:?}");
+        assert!((palm.z - 0.25).abs() < 1e-3, "{palm:?}");
         assert_eq!(rig.arm.with_sim(|s| s.drop_reason()), None);
         // Fingers stopped on the object, with strain; the spread as planned.
         assert_eq!(report.fingers_in_contact, Puck::FINGERS.to_vec());
@@ -882,8 +993,9 @@ mod tests {
             ),
             "{err}"
         );
+        // It holds where the approach ended: the whole overtravel past the grasp.
         let palm = rig.robot.arm().palm(&rig.sim_joints()).translation.vector;
-        assert!((palm.z - 0.20).abs() < 1e-3, "{palm:?}");
+        assert!((palm.z - 0.15).abs() < 1e-3, "{palm:?}");
     }
 
     #[test]
@@ -937,6 +1049,120 @@ mod tests {
         );
     }
 
+    /// How far the open hand (spread 0.3) reaches ahead of the palm along its
+    /// approach axis: the largest palm-frame z of its link boxes.
+    fn reach_ahead(robot: &Robot) -> f64 {
+        let hand = crate::robot::hand::HandModel::from_description(
+            &robot.description,
+            "bh_palm",
+            std::path::Path::new("shipped"),
+        )
+        .unwrap();
+        let open = HandPose {
+            spread_rad: 0.3,
+            flex_rad: [0.0; 3],
+        };
+        hand.link_poses(&open)
+            .iter()
+            .flat_map(|(link, pose)| {
+                link.shapes
+                    .iter()
+                    .map(move |(local, shape)| shape.compute_aabb(&(pose * local)).maxs.z)
+            })
+            .fold(f64::MIN, f64::max)
+    }
+
+    #[test]
+    fn the_guarded_approach_stops_at_first_contact_with_a_box_through_the_fri_driver() {
+        // A wide block under the top-down grasp at z = 0.20 whose top is 30 mm
+        // beyond the open fingertips' reach at the planned pose: the approach
+        // (pre-grasp at 0.30) must stop about 30 mm past the plan, on the arm
+        // simulator's contact force, through the real FRI driver core.
+        let robot = shipped_robot();
+        let top = 0.20 - reach_ahead(&robot) - 0.030;
+        let mut scene = crate::sim::scene::Scene::new(None);
+        scene
+            .add(
+                "block",
+                crate::quality::autograsp::tests::cuboid([0.0, 0.0, -0.05], [0.3, 0.3, 0.1]),
+                Pose::translation(0.6, 0.0, top),
+            )
+            .unwrap();
+        let rig = Rig::in_world(&scene, "execute-block");
+        let req = request(&rig.robot);
+        let report = rig.executor(&rig.arm).execute(&req);
+        let stop = report
+            .approach_stop
+            .as_ref()
+            .unwrap_or_else(|| panic!("{}", report.human()));
+        assert!(stop.contact, "{stop:?}");
+        assert!(stop.contact_force_n.unwrap() > 10.0, "{stop:?}");
+        // First contact at 30 mm; the force reaches 10 N within 0.5 mm of
+        // penetration and the arm brakes from 0.05 m/s within about 1 mm.
+        assert!(
+            stop.beyond_plan_m > 0.030 && stop.beyond_plan_m < 0.033,
+            "stopped {} m beyond the plan",
+            stop.beyond_plan_m
+        );
+        // The fingertips stood on the flat face: closing jams them there at
+        // once (in contact, with strain), but the grasp is not force closure,
+        // so the block stays behind when the arm lifts: the grasp is lost.
+        assert_eq!(
+            report.fingers_in_contact,
+            Puck::FINGERS.to_vec(),
+            "{}",
+            report.human()
+        );
+        let err = report.error.as_ref().expect("no grasp on a flat face");
+        assert!(
+            matches!(err, ExecuteError::GraspLost { strain_rise: 0, .. }),
+            "{}",
+            report.human()
+        );
+        // The simulated robot itself lifted 0.10 m from where the approach stopped.
+        let palm = rig.robot.arm().palm(&rig.sim_joints()).translation.vector;
+        assert!(
+            (palm.z - (0.30 - stop.beyond_plan_m)).abs() < 1e-3,
+            "{palm:?}"
+        );
+    }
+
+    #[test]
+    fn closing_beside_a_thin_plate_touches_with_one_finger_only_and_is_no_contact() {
+        // A thin vertical plate beside the palm axis of a top-down hand: the
+        // approach stops on it, one finger closes on it, the others on air.
+        let robot = shipped_robot();
+        let mut scene = crate::sim::scene::Scene::new(None);
+        scene
+            .add(
+                "plate",
+                crate::quality::autograsp::tests::cuboid([0.0, 0.0, 0.0], [0.006, 0.2, 0.1]),
+                Pose::translation(0.6 + 0.03, 0.0, 0.20 - reach_ahead(&robot) + 0.02),
+            )
+            .unwrap();
+        let rig = Rig::in_world(&scene, "execute-plate");
+        let req = request(&rig.robot);
+        let report = rig.executor(&rig.arm).execute(&req);
+        assert!(
+            report.approach_stop.as_ref().unwrap().contact,
+            "{}",
+            report.human()
+        );
+        let err = report.error.as_ref().expect("the plate is not grasped");
+        assert!(
+            matches!(
+                err,
+                ExecuteError::NoContact {
+                    in_contact: 1,
+                    required: 2,
+                    ..
+                }
+            ),
+            "{}",
+            report.human()
+        );
+    }
+
     /// An arm whose motions never end.
     struct Stuck<'a>(&'a LockstepArm);
 
@@ -946,6 +1172,13 @@ mod tests {
         }
         fn start_trajectory(&self, t: Trajectory<JOINTS>) -> Result<u64, FriError> {
             self.0.start_trajectory(t)
+        }
+        fn start_guarded_trajectory(
+            &self,
+            t: Trajectory<JOINTS>,
+            guard: crate::hw::fri::ForceGuard,
+        ) -> Result<u64, FriError> {
+            self.0.start_guarded_trajectory(t, guard)
         }
         fn motion_outcome(&self, _id: u64) -> Option<Result<(), FriError>> {
             None

@@ -7,7 +7,7 @@
 use super::arm::Arm;
 use crate::clock::Clock;
 use crate::hw::fri::driver::DriverCore;
-use crate::hw::fri::{DriverConfig, FriError, FriStatus, MeasurementDatagram, JOINTS};
+use crate::hw::fri::{DriverConfig, ForceGuard, FriError, FriStatus, MeasurementDatagram, JOINTS};
 use crate::sim::fri::{FriSimulator, SimConfig};
 use crate::trajectory::Trajectory;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -97,6 +97,16 @@ impl Arm for LockstepArm {
 
     fn start_trajectory(&self, trajectory: Trajectory<JOINTS>) -> Result<u64, FriError> {
         self.advance().core.start_trajectory(trajectory)
+    }
+
+    fn start_guarded_trajectory(
+        &self,
+        trajectory: Trajectory<JOINTS>,
+        guard: ForceGuard,
+    ) -> Result<u64, FriError> {
+        self.advance()
+            .core
+            .start_guarded_trajectory(trajectory, guard)
     }
 
     fn motion_outcome(&self, id: u64) -> Option<Result<(), FriError>> {

@@ -15,10 +15,15 @@
 //!    strain gauges are read as the baseline.
 //! 5. [`Phase::Pregrasp`]: joint-space trajectory from the current joints to the
 //!    planned pre-grasp joints.
-//! 6. [`Phase::Approach`]: the palm moves in a straight line to the grasp pose
-//!    (IK along the line seeded with the previous solution; a single joint-space
-//!    segment when that keeps the palm within tolerance — see [`path`]), at most at
-//!    `limits.palm_speed_m_s`.
+//! 6. [`Phase::Approach`]: approach to contact. The palm moves in a straight line
+//!    through the grasp pose up to `approach.max_overtravel_m` beyond it (less
+//!    where the safety layer refuses the full overtravel; IK along the line seeded
+//!    with the previous solution; a single joint-space segment when that keeps the
+//!    palm within tolerance — see [`path`]), at most at `approach.speed_m_s`, as a
+//!    guarded move: the FRI driver stops it (decelerate, then hold) at the first
+//!    measurement whose estimated external TCP force (`estExtTcpFT`) exceeds its
+//!    start value by `approach.contact_force_n`. Contact or not, the hand closes
+//!    where the arm came to rest ([`ApproachReport`]).
 //! 7. [`Phase::Close`]: [`Hand::close`](crate::hw::hand::Hand::close) with TSTOP; fingers that stalled short of
 //!    their close target with a strain rise are in contact; too few is
 //!    [`ExecuteError::NoContact`].
@@ -67,7 +72,7 @@ pub use arm::Arm;
 pub use executor::{Executor, ExecutorConfig};
 pub use motions::{validate_grasp, GraspMotions};
 pub use path::{PathError, PathMethod, PathTolerance, StraightPath};
-pub use report::{ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
+pub use report::{ApproachReport, ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
 pub use request::{ExecutionRequest, RequestError, ValidRequest};
 pub use safety::{SafeArm, SafeArmError, SafetyCheck, SafetyError, SafetyLimits};
 

@@ -1,6 +1,7 @@
 //! The arm motions of a grasp, built and checked before anything moves: the
-//! joint-space move to the pre-grasp joints, the straight approach to the grasp and
-//! the straight lift. The executor validates every request with
+//! joint-space move to the pre-grasp joints, the straight approach through the
+//! grasp to the end of the overtravel (approach to contact: the executor runs it
+//! as a guarded move that stops at contact) and the straight lift. The executor validates every request with
 //! [`validate_grasp`]; the planner stage runs the same check on its candidates, so
 //! a plan it publishes is one the executor accepts.
 
@@ -26,8 +27,14 @@ pub struct GraspMotions {
     pub preshape: HandPose,
     /// The move from the current joints to the pre-grasp joints.
     pub pregrasp_move: MotionReport,
-    /// The straight approach.
+    /// The straight approach, from the pre-grasp through the grasp to the end of
+    /// the overtravel.
     pub approach: MotionReport,
+    /// The joints at the end of the approach.
+    pub approach_end_rad: ArmJoints,
+    /// How far beyond the planned pose the approach may go (m): the configured
+    /// overtravel, or less where the safety layer refuses the full one.
+    pub overtravel_m: f64,
     /// The straight lift (checked with the open hand; the executor checks it again
     /// with the measured hand before lifting).
     pub lift: MotionReport,
@@ -38,11 +45,22 @@ pub fn lifted(config: &ExecutorConfig, palm: &Pose) -> Pose {
     Translation3::new(0.0, 0.0, config.lift_m) * palm
 }
 
+/// The peak palm speed of the approach (m/s): the guarded move's, at most the
+/// general palm speed limit.
+pub fn approach_speed_m_s(config: &ExecutorConfig) -> f64 {
+    config.approach.speed_m_s.min(config.palm_speed_m_s)
+}
+
+/// `palm` moved along its approach axis (+z) by `distance_m`.
+pub fn advanced(palm: &Pose, distance_m: f64) -> Pose {
+    palm * Pose::translation(0.0, 0.0, distance_m)
+}
+
 /// The trajectory through `waypoints` within the joint limits of `check`; along a
-/// straight palm `path`, also at most `config.palm_speed_m_s`.
+/// straight palm `path`, also at most `palm_speed_m_s`.
 pub fn motion(
     check: &SafetyCheck,
-    config: &ExecutorConfig,
+    palm_speed_m_s: f64,
     phase: Phase,
     waypoints: &[ArmJoints],
     path: Option<&StraightPath>,
@@ -52,7 +70,7 @@ pub fn motion(
     let period = check.limits().check_period_s;
     let robot = check.robot();
     let (trajectory, peak) = match path {
-        Some(_) => palm_speed_limited(robot, waypoints, &limits, config.palm_speed_m_s, period)
+        Some(_) => palm_speed_limited(robot, waypoints, &limits, palm_speed_m_s, period)
             .map_err(to_error)?,
         None => {
             let t = Trajectory::through(waypoints, &limits).map_err(to_error)?;
@@ -74,14 +92,14 @@ pub fn motion(
 /// [`motion`], checked by the safety layer with the hand shaped as `hand`.
 pub fn checked_motion(
     check: &SafetyCheck,
-    config: &ExecutorConfig,
+    palm_speed_m_s: f64,
     phase: Phase,
     name: &'static str,
     waypoints: &[ArmJoints],
     path: Option<&StraightPath>,
     hand: &HandPose,
 ) -> Result<MotionReport, ExecuteError> {
-    let (trajectory, report) = motion(check, config, phase, waypoints, path)?;
+    let (trajectory, report) = motion(check, palm_speed_m_s, phase, waypoints, path)?;
     check
         .check_with(&trajectory, hand)
         .map_err(|source| ExecuteError::Unsafe {
@@ -110,7 +128,7 @@ pub fn validate_grasp(
     };
     let pregrasp_move = checked_motion(
         check,
-        config,
+        config.palm_speed_m_s,
         PHASE,
         "pregrasp move",
         &[*current, request.pregrasp_joints_rad],
@@ -139,23 +157,41 @@ pub fn validate_grasp(
             source,
         }
     };
-    let approach_path = straight_line(
-        robot,
-        &request.pregrasp_joints_rad,
-        &request.palm,
-        Some(&request.joints_rad),
-        &config.path,
-    )
-    .map_err(path_error("approach"))?;
-    let approach = checked_motion(
-        check,
-        config,
-        PHASE,
-        "approach",
-        &approach_path.waypoints,
-        Some(&approach_path),
-        &preshape,
-    )?;
+    // The full overtravel, or as much of it as the path and the safety layer
+    // allow (a quarter at a time), down to none: then the plain approach's error.
+    let max = config.approach.max_overtravel_m;
+    let mut tried = [max, 0.75 * max, 0.5 * max, 0.25 * max, 0.0]
+        .into_iter()
+        .peekable();
+    let (approach_path, approach, overtravel_m) = loop {
+        let overtravel = tried.next().unwrap_or(0.0);
+        let last = overtravel <= 0.0 || tried.peek().is_none();
+        let attempt = straight_line(
+            robot,
+            &request.pregrasp_joints_rad,
+            &advanced(&request.palm, overtravel),
+            (overtravel <= 0.0).then_some(&request.joints_rad),
+            &config.path,
+        )
+        .map_err(path_error("approach"))
+        .and_then(|path| {
+            let report = checked_motion(
+                check,
+                approach_speed_m_s(config),
+                PHASE,
+                "approach",
+                &path.waypoints,
+                Some(&path),
+                &preshape,
+            )?;
+            Ok((path, report))
+        });
+        match attempt {
+            Ok((path, report)) => break (path, report, overtravel),
+            Err(e) if last => return Err(e),
+            Err(e) => tracing::debug!(overtravel, "approach overtravel refused: {e}"),
+        }
+    };
     let lift_target = lifted(config, &robot.arm().palm(&approach_path.end()));
     let lift_path = straight_line(
         robot,
@@ -167,7 +203,7 @@ pub fn validate_grasp(
     .map_err(path_error("lift"))?;
     let lift = checked_motion(
         check,
-        config,
+        config.palm_speed_m_s,
         PHASE,
         "lift",
         &lift_path.waypoints,
@@ -175,10 +211,12 @@ pub fn validate_grasp(
         &preshape,
     )?;
     Ok(GraspMotions {
+        approach_end_rad: approach_path.end(),
         request,
         preshape,
         pregrasp_move,
         approach,
+        overtravel_m,
         lift,
     })
 }

@@ -47,6 +47,20 @@ pub struct MotionReport {
     pub max_rotation_deviation_rad: Option<f64>,
 }
 
+/// Where the guarded approach stopped.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ApproachReport {
+    /// How far beyond the planned pose the approach could go (m).
+    pub overtravel_m: f64,
+    /// Whether it stopped on contact (else it went the whole way).
+    pub contact: bool,
+    /// The external TCP force over its start value that stopped it (N).
+    pub contact_force_n: Option<f64>,
+    /// Signed distance of the palm at rest beyond the planned pose, along the
+    /// approach axis (m; negative: short of it).
+    pub beyond_plan_m: f64,
+}
+
 /// What stopping did to each device after a failure.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct StopReport {
@@ -74,6 +88,8 @@ pub struct ExecutionReport {
     pub pregrasp_move: Option<MotionReport>,
     /// The approach.
     pub approach: Option<MotionReport>,
+    /// Where the approach to contact stopped.
+    pub approach_stop: Option<ApproachReport>,
     /// The lift.
     pub lift: Option<MotionReport>,
     /// How each finger's close ended.
@@ -107,6 +123,7 @@ impl ExecutionReport {
             phases: Vec::new(),
             pregrasp_move: None,
             approach: None,
+            approach_stop: None,
             lift: None,
             close: Vec::new(),
             fingers_in_contact: Vec::new(),

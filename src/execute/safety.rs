@@ -412,6 +412,17 @@ impl<A: Arm> SafeArm<A> {
         self.check(&trajectory)?;
         Ok(self.arm.start_trajectory(trajectory)?)
     }
+
+    /// Checks `trajectory`, then starts it on the arm guarded by `guard` (it
+    /// stops at contact); the whole trajectory is checked, as if no contact came.
+    pub fn start_guarded_trajectory(
+        &self,
+        trajectory: Trajectory<JOINTS>,
+        guard: crate::hw::fri::ForceGuard,
+    ) -> Result<u64, SafeArmError> {
+        self.check(&trajectory)?;
+        Ok(self.arm.start_guarded_trajectory(trajectory, guard)?)
+    }
 }
 
 #[cfg(test)]
@@ -435,6 +446,13 @@ mod tests {
             let mut started = self.started.lock().unwrap();
             started.push(trajectory);
             Ok(started.len() as u64)
+        }
+        fn start_guarded_trajectory(
+            &self,
+            trajectory: Trajectory<JOINTS>,
+            _guard: crate::hw::fri::ForceGuard,
+        ) -> Result<u64, FriError> {
+            self.start_trajectory(trajectory)
         }
         fn motion_outcome(&self, _id: u64) -> Option<Result<(), FriError>> {
             None

@@ -429,6 +429,25 @@ pub fn close_hand(
     Ok(outcome)
 }
 
+/// The links of the open hand (fingers at their lower flex limits, distal
+/// links coupled) with `object_from_palm` and `spread_rad`: palm, then each
+/// finger's proximal and distal link.
+fn open_hand_links<'h>(
+    hand: &'h HandModel,
+    object_from_palm: &Pose,
+    spread_rad: f64,
+) -> Vec<(&'h HandLink, Pose)> {
+    let mut links: Vec<(&HandLink, Pose)> = vec![(&hand.palm, *object_from_palm)];
+    for f in &hand.fingers {
+        let base = object_from_palm * f.palm_from_flex_base(spread_rad);
+        let lo = f.flex_limits_rad.0;
+        let (p, d) = f.link_poses_from_base(&base, lo, f.coupled_distal_rad(lo));
+        links.push((&f.proximal, p));
+        links.push((&f.distal, d));
+    }
+    links
+}
+
 /// The first collision of the open hand (fingers at their lower flex limits) at
 /// `object_from_palm` with the object or the table, or the palm inside the object.
 pub fn open_hand_collision(
@@ -443,15 +462,7 @@ pub fn open_hand_collision(
         options: &options,
         dispatcher: DefaultQueryDispatcher,
     };
-    let mut links: Vec<(&HandLink, Pose)> = vec![(&hand.palm, *object_from_palm)];
-    for f in &hand.fingers {
-        let base = object_from_palm * f.palm_from_flex_base(spread_rad);
-        let lo = f.flex_limits_rad.0;
-        let (p, d) = f.link_poses_from_base(&base, lo, f.coupled_distal_rad(lo));
-        links.push((&f.proximal, p));
-        links.push((&f.distal, d));
-    }
-    links
+    open_hand_links(hand, object_from_palm, spread_rad)
         .into_iter()
         .find_map(|(link, pose)| {
             sim.hits(link, &pose).map(|with| StartCollision {
@@ -474,6 +485,27 @@ pub fn open_hand_collision(
                     with: Obstacle::InsideObject,
                 })
         })
+}
+
+/// True when every link of the open hand at `object_from_palm` is provably
+/// farther than `margin_m` from the object and the table (conservative: false
+/// may still be clear).
+pub fn open_hand_clear_by(
+    hand: &HandModel,
+    object: &GraspObject,
+    object_from_palm: &Pose,
+    spread_rad: f64,
+    margin_m: f64,
+) -> bool {
+    let options = AutoGraspOptions::default();
+    let sim = Sim {
+        object,
+        options: &options,
+        dispatcher: DefaultQueryDispatcher,
+    };
+    open_hand_links(hand, object_from_palm, spread_rad)
+        .iter()
+        .all(|(link, pose)| sim.clear_by(link, pose, margin_m))
 }
 
 /// The pose backed off from `object_from_palm` along the palm's -z (the approach
@@ -520,6 +552,10 @@ pub struct GraspEvaluation {
     pub force_closure: bool,
     /// The closing simulation.
     pub outcome: GraspOutcome,
+    /// Where the approach to contact stopped, when the grasp was approached
+    /// ([`evaluate_approached_grasp`]); `None`: closed at the given pose.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub approach: Option<super::approach::ApproachStop>,
 }
 
 /// Auto-grasp at `object_from_palm` and the quality of the result; `with_volume`
@@ -552,7 +588,69 @@ pub fn evaluate_grasp(
         volume,
         force_closure: epsilon > 0.0,
         outcome,
+        approach: None,
     })
+}
+
+/// [`evaluate_grasp`] after the palm is brought to the grasp as `approach` says:
+/// with approach to contact, from the pre-grasp along the approach axis through
+/// `object_from_palm` until first contact ([`super::approach::approach_to_contact`]),
+/// then closed where it stopped; with [`GraspApproach::AtPose`] (the paper's
+/// setting) closed at `object_from_palm` itself. A pre-grasp that already collides
+/// is reported as a collision at the start, like an open hand that collides.
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_approached_grasp(
+    hand: &HandModel,
+    object: &GraspObject,
+    object_from_palm: &Pose,
+    spread_rad: f64,
+    approach: &GraspApproach,
+    options: &AutoGraspOptions,
+    params: &QualityParams,
+    with_volume: bool,
+) -> Result<GraspEvaluation, GraspSimError> {
+    let GraspApproach::ToContact(approach) = approach else {
+        return evaluate_grasp(
+            hand,
+            object,
+            object_from_palm,
+            spread_rad,
+            options,
+            params,
+            with_volume,
+        );
+    };
+    let stop =
+        super::approach::approach_to_contact(hand, object, object_from_palm, spread_rad, approach)?;
+    let mut e = evaluate_grasp(
+        hand,
+        object,
+        &stop.object_from_palm,
+        spread_rad,
+        options,
+        params,
+        with_volume,
+    )?;
+    if let Some(c) = &stop.start_collision {
+        // The pre-grasp collides: nothing to approach or close.
+        e.outcome.collision_at_start = Some(c.clone());
+        e.outcome.contacts.clear();
+        e.epsilon = 0.0;
+        e.volume = with_volume.then_some(0.0);
+        e.force_closure = false;
+    }
+    e.approach = Some(stop);
+    Ok(e)
+}
+
+/// How a grasp simulation brings the palm to the planned pose.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GraspApproach {
+    /// The palm is placed at the planned pose (the paper's experiments).
+    AtPose,
+    /// Approach to contact along the palm's approach axis (as the executor does).
+    ToContact(super::approach::ApproachOptions),
 }
 
 /// A lower bound on the distance between a box of half extents `half` (centred
@@ -581,7 +679,7 @@ fn box_triangle_gap(
 
 /// Clearance (m) below which the closing fingers step and test exactly; farther
 /// from everything they jump by as much as keeps every point within it.
-const FREE_MARGIN_M: f64 = 0.015;
+pub(crate) const FREE_MARGIN_M: f64 = 0.015;
 
 /// An oriented box in the object frame, to prune the mesh's BVH and test
 /// triangles: a node is kept unless one of the three world axes or the box's

@@ -7,6 +7,7 @@
 //! the hull only toward the origin and is exact; qhull gives the volume (and is the
 //! fallback for epsilon should the expansion fail numerically).
 
+pub mod approach;
 pub mod autograsp;
 pub mod epsilon;
 pub mod gws;

@@ -29,6 +29,10 @@
 //!   program does not call `friStart` again unless [`FriSimulator::request_start`].
 //! - The KRL program calls `friStop` when a command sets [`RELEASE_BIT`] of
 //!   `boolData` (the PC is done), and does not call `friStart` while it is set.
+//! - `estExtTcpFT` comes from an [`ExternalForce`] model when one is set
+//!   ([`FriSimulator::set_external_force`]; `cell-sim-arm --scene` uses the
+//!   simulated world's contact force, [`crate::sim::world::ArmContact`]), evaluated
+//!   at the measured joints every cycle; zero otherwise.
 //! - Not simulated (sent as zeros): Cartesian poses, torques, Jacobian, mass matrix,
 //!   gravity. Drive temperatures are a constant ambient value.
 
@@ -458,9 +462,30 @@ pub struct SimCounters {
     pub events_discarded: u64,
 }
 
+/// What the environment does to the simulated arm: the force and torque at the
+/// tool that FRI reports as `estExtTcpFT`.
+pub trait ExternalForce: Send {
+    /// Fx Fy Fz (N) Tz Ty Tx (N m) at the tool, tool frame, with the arm at
+    /// `measured_rad`.
+    fn tcp_ft(&mut self, measured_rad: &[f64; JOINTS]) -> [f64; 6];
+}
+
+/// The optional force model, printable.
+struct ForceModel(Option<Box<dyn ExternalForce>>);
+
+impl fmt::Debug for ForceModel {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(if self.0.is_some() { "Some(..)" } else { "None" })
+    }
+}
+
 /// The robot-side FRI state machine.
 #[derive(Debug)]
 pub struct FriSimulator {
+    /// Source of `estExtTcpFT`.
+    force_model: ForceModel,
+    /// `estExtTcpFT` of the current cycle.
+    ext_tcp_ft: [f64; 6],
     config: SimConfig,
     /// Time of `friOpen` (the first measurement).
     opened_at: Option<Duration>,
@@ -508,6 +533,8 @@ impl FriSimulator {
         config.validate()?;
         let q = config.initial_joints_rad;
         Ok(FriSimulator {
+            force_model: ForceModel(None),
+            ext_tcp_ft: [0.0; 6],
             opened_at: None,
             next_send: Duration::ZERO,
             last_step: Duration::ZERO,
@@ -542,6 +569,16 @@ impl FriSimulator {
     /// The configuration.
     pub fn config(&self) -> &SimConfig {
         &self.config
+    }
+
+    /// Sets (or removes) the model of `estExtTcpFT`.
+    pub fn set_external_force(&mut self, model: Option<Box<dyn ExternalForce>>) {
+        self.force_model = ForceModel(model);
+    }
+
+    /// `estExtTcpFT` of the latest measurement (Fx Fy Fz N, Tz Ty Tx N m).
+    pub fn ext_tcp_ft(&self) -> [f64; 6] {
+        self.ext_tcp_ft
     }
 
     /// Monitor or command mode (OFF before the first poll).
@@ -678,6 +715,9 @@ impl FriSimulator {
         }
         self.update_quality(now);
         self.run_state_machine(now);
+        if let Some(model) = &mut self.force_model.0 {
+            self.ext_tcp_ft = model.tcp_ft(&self.msr_rad);
+        }
 
         self.seq = self.seq.wrapping_add(1);
         if self.sent.len() == STATS_WINDOW {
@@ -986,6 +1026,7 @@ impl FriSimulator {
                 msr_jnt_pos: to_f32(self.msr_rad),
                 cmd_jnt_pos: krl,
                 cmd_jnt_pos_fri_offset: offset,
+                est_ext_tcp_ft: self.ext_tcp_ft.map(|v| v as f32),
                 ..Default::default()
             },
         }

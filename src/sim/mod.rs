@@ -8,3 +8,4 @@ pub mod lab;
 pub mod observer;
 pub mod puck;
 pub mod scene;
+pub mod world;

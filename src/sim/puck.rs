@@ -20,6 +20,12 @@
 //!   contact angle ([`HandEmulatorConfig::contact_rad`]); after TSTOP ms stalled the
 //!   move ends (TSTOP = 0: it pushes on in MODE 5 forever). A finger resting at
 //!   its contact reads SG = 2000 + [`HandEmulatorConfig::contact_strain`], else 2000.
+//! - Objects that are there ([`HandEmulator::with_feel`]): with a [`Feel`], the
+//!   contact angles are asked for whenever a motion command reaches a finger while
+//!   no finger presses on an object (so a closing hand stalls where the object
+//!   is at that moment); after every frame the hand reports its joints, and a
+//!   held object that slips out ([`Feel::still_held`] false) takes its contacts
+//!   with it: the strain falls to 2000.
 //!
 //! State is a function of the injected clock's time, evaluated whenever a frame
 //! arrives, so a test on a [`crate::clock::ManualClock`] sees motion advance exactly
@@ -97,12 +103,25 @@ pub struct EmulatorStats {
     pub garbled: u64,
 }
 
+/// What the emulated fingers close on: the simulated world seen from the hand
+/// (`crate::sim::world::HandContact`), or a test's script.
+pub trait Feel: Send {
+    /// Where F1, F2, F3 stall when closing now from open with the spread at
+    /// `spread_rad` (flex angle, rad); `None`: free to the limit.
+    fn contacts(&mut self, spread_rad: f64) -> [Option<f64>; 3];
+    /// Whether the object the fingers press on is still in the hand.
+    fn still_held(&mut self) -> bool;
+    /// The hand's joints now, and whether its fingers press on the object.
+    fn hand_moved(&mut self, pose: &crate::robot::HandPose, holding: bool);
+}
+
 /// The four emulated pucks.
 pub struct HandEmulator {
     clock: Arc<dyn Clock>,
     pucks: Vec<EmulatedPuck>,
     boot: Duration,
     stats: EmulatorStats,
+    feel: Option<Box<dyn Feel>>,
 }
 
 impl HandEmulator {
@@ -144,7 +163,82 @@ impl HandEmulator {
             pucks,
             boot: config.boot,
             stats: EmulatorStats::default(),
+            feel: None,
         })
+    }
+
+    /// The same emulator with contacts from `feel` instead of fixed angles.
+    pub fn with_feel(mut self, feel: Box<dyn Feel>) -> HandEmulator {
+        self.feel = Some(feel);
+        self
+    }
+
+    /// Before a frame: a held object that slipped out leaves the fingers (so
+    /// the frame's answer already tells); a command that may close a finger
+    /// (CMD C, TC, IC, M; MODE 5; a new M or P) while none presses on the object
+    /// asks `feel` where the fingers stall.
+    fn feel_before(&mut self, frame: &CanFrame, now: Duration) {
+        let Some(feel) = self.feel.as_mut() else {
+            return;
+        };
+        for p in &mut self.pucks {
+            p.update(now);
+        }
+        if self.pucks.iter().any(EmulatedPuck::pressing) && !feel.still_held() {
+            tracing::info!("emulated hand: the object slipped out");
+            for p in &mut self.pucks {
+                p.contact_counts = None;
+            }
+        }
+        let address = split_id(frame.id());
+        let closing = match decode_request(frame.data()) {
+            Ok(Request::Set(id, value)) => {
+                (id == Property::Cmd.id()
+                    && [command::C, command::TC, command::IC, command::M].contains(&value))
+                    || (id == Property::Mode.id() && value == mode::TRAPEZOIDAL)
+                    || id == Property::M.id()
+                    || id == Property::P.id()
+            }
+            _ => false,
+        };
+        let to_finger = self
+            .pucks
+            .iter()
+            .any(|p| p.puck.is_finger() && p.listens_to(address));
+        if !closing || !to_finger || self.pucks.iter().any(EmulatedPuck::pressing) {
+            return;
+        }
+        let spread_rad = self
+            .pucks
+            .iter()
+            .find(|p| p.puck == Puck::Spread)
+            .map_or(0.0, |p| p.position / p.counts_per_rad);
+        let contacts = feel.contacts(spread_rad);
+        for p in &mut self.pucks {
+            if p.puck.is_finger() {
+                p.contact_counts = contacts[p.puck.index()].map(|rad| rad * p.counts_per_rad);
+            }
+        }
+    }
+
+    /// After a frame: the hand's state goes to `feel`.
+    fn feel_after(&mut self, now: Duration) {
+        let Some(feel) = self.feel.as_mut() else {
+            return;
+        };
+        for p in &mut self.pucks {
+            p.update(now);
+        }
+        let holding = self.pucks.iter().any(EmulatedPuck::pressing);
+        let mut pose = crate::robot::HandPose::OPEN;
+        for p in &self.pucks {
+            let rad = p.position / p.counts_per_rad;
+            match p.puck {
+                Puck::Spread => pose.spread_rad = rad,
+                finger => pose.flex_rad[finger.index()] = rad,
+            }
+        }
+        feel.hand_moved(&pose, holding);
     }
 
     /// Frame counts so far.
@@ -185,6 +279,7 @@ impl HandEmulator {
     pub fn handle(&mut self, frame: &CanFrame) -> Vec<CanFrame> {
         self.stats.received += 1;
         let now = self.clock.now();
+        self.feel_before(frame, now);
         let address = split_id(frame.id());
         let mut replies = Vec::new();
         for p in &mut self.pucks {
@@ -210,6 +305,7 @@ impl HandEmulator {
             }
         }
         self.stats.replies += replies.len() as u64;
+        self.feel_after(now);
         replies
     }
 
@@ -497,6 +593,14 @@ impl EmulatedPuck {
         self.put(Property::Mode, end_mode);
     }
 
+    /// A finger resting on (or pushing into) its contact.
+    fn pressing(&self) -> bool {
+        self.puck.is_finger()
+            && self
+                .contact_counts
+                .is_some_and(|c| self.position >= c - 0.5)
+    }
+
     fn ready(&self) -> bool {
         self.booting_until.is_none() && self.prop(Property::Stat) == status::READY
     }
@@ -505,10 +609,11 @@ impl EmulatedPuck {
         match Property::from_id(id) {
             Some(Property::P) => self.position.round() as i32,
             Some(Property::Sg) if self.puck.is_finger() => {
-                let pressing = self
-                    .contact_counts
-                    .is_some_and(|c| self.position >= c - 0.5);
-                2000 + if pressing { self.contact_strain } else { 0 }
+                2000 + if self.pressing() {
+                    self.contact_strain
+                } else {
+                    0
+                }
             }
             _ => self.props[usize::from(id & 0x7F)],
         }

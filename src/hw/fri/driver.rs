@@ -165,6 +165,32 @@ pub enum FriError {
     /// The driver's thread has ended.
     #[error("FRI driver has shut down")]
     ShutDown,
+    /// A guarded motion met its force threshold and was stopped (decelerate,
+    /// then hold): contact.
+    #[error("motion {id} stopped on contact: external TCP force {force_n:.2} N over its start (threshold {threshold_n} N)")]
+    Contact {
+        /// The motion.
+        id: u64,
+        /// Magnitude of the estimated external TCP force over its value at the
+        /// motion's start (N).
+        force_n: f64,
+        /// The threshold (N).
+        threshold_n: f64,
+    },
+}
+
+/// A guard on a motion: stop (decelerate, then hold) at the first measurement
+/// whose estimated external TCP force (`estExtTcpFT`, force part) differs from
+/// its value at the motion's start by more than `threshold_n`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ForceGuard {
+    /// The contact force (N), > 0.
+    pub threshold_n: f64,
+}
+
+/// The force part of `estExtTcpFT` (N).
+fn tcp_force(m: &MeasurementDatagram) -> [f64; 3] {
+    std::array::from_fn(|i| f64::from(m.data.est_ext_tcp_ft[i]))
 }
 
 /// What the driver saw or did; also logged via `tracing`.
@@ -375,6 +401,12 @@ pub struct FriStatus {
     pub link: LinkStats,
     /// Cumulative counters.
     pub counters: DriverCounters,
+    /// The robot's estimated external force and torque at the tool
+    /// (`estExtTcpFT`: Fx Fy Fz N, Tz Ty Tx N m) in the last measurement.
+    pub est_ext_tcp_ft: [f64; 6],
+    /// Whether the arm still moves under the driver's command (following a
+    /// trajectory or braking to rest).
+    pub moving: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -388,6 +420,8 @@ enum Motion {
         id: u64,
         trajectory: Box<Trajectory<JOINTS>>,
         t_s: f64,
+        /// The guard and the TCP force at the start.
+        guard: Option<(ForceGuard, [f64; 3])>,
     },
     /// Decelerate to rest, then hold.
     Brake {
@@ -607,6 +641,7 @@ impl DriverCore {
             }
             Ok(()) => {
                 self.commanding = true;
+                self.check_guard(m);
                 self.advance(f64::from(gap) * dt_s, mirrored)
             }
         };
@@ -632,6 +667,35 @@ impl DriverCore {
         }
     }
 
+    /// Stops a guarded motion whose force threshold `m` exceeds.
+    fn check_guard(&mut self, m: &MeasurementDatagram) {
+        let Motion::Follow {
+            id,
+            guard: Some((guard, start)),
+            ..
+        } = &self.motion
+        else {
+            return;
+        };
+        let f = tcp_force(m);
+        let force_n = (0..3)
+            .map(|i| (f[i] - start[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        if force_n > guard.threshold_n {
+            let (id, threshold_n) = (*id, guard.threshold_n);
+            self.brake();
+            self.finish(
+                id,
+                Err(FriError::Contact {
+                    id,
+                    force_n,
+                    threshold_n,
+                }),
+            );
+        }
+    }
+
     /// Moves the motion on by `dt_s` and returns the position to command.
     fn advance(&mut self, dt_s: f64, mirrored: [f64; JOINTS]) -> [f64; JOINTS] {
         match &mut self.motion {
@@ -644,6 +708,7 @@ impl DriverCore {
                 id,
                 trajectory,
                 t_s,
+                ..
             } => {
                 *t_s += dt_s;
                 if *t_s >= trajectory.duration_s() {
@@ -704,6 +769,33 @@ impl DriverCore {
     /// `start_tolerance_rad`) where the arm is commanded, the robot must be
     /// commandable and no other motion running. Returns the motion's id.
     pub fn start_trajectory(&mut self, trajectory: Trajectory<JOINTS>) -> Result<u64, FriError> {
+        self.start_motion(trajectory, None)
+    }
+
+    /// [`DriverCore::start_trajectory`] with a force guard: the motion stops
+    /// (decelerates, then holds) at the first measurement whose external TCP force
+    /// exceeds `guard` over the force when it started, and ends with
+    /// [`FriError::Contact`].
+    pub fn start_guarded_trajectory(
+        &mut self,
+        trajectory: Trajectory<JOINTS>,
+        guard: ForceGuard,
+    ) -> Result<u64, FriError> {
+        if !(guard.threshold_n.is_finite() && guard.threshold_n > 0.0) {
+            return Err(FriError::BadConfig {
+                field: "force guard threshold_n",
+                value: guard.threshold_n.to_string(),
+                problem: "must be a finite force > 0",
+            });
+        }
+        self.start_motion(trajectory, Some(guard))
+    }
+
+    fn start_motion(
+        &mut self,
+        trajectory: Trajectory<JOINTS>,
+        guard: Option<ForceGuard>,
+    ) -> Result<u64, FriError> {
         if let Some(id) = self.running_id() {
             return Err(FriError::Busy { id });
         }
@@ -739,6 +831,7 @@ impl DriverCore {
             id,
             trajectory: Box::new(trajectory),
             t_s: 0.0,
+            guard: guard.map(|g| (g, tcp_force(&m))),
         };
         Ok(id)
     }
@@ -746,18 +839,28 @@ impl DriverCore {
     /// Stops a running trajectory: decelerates to rest within its acceleration
     /// limits, then holds. The motion ends with [`FriError::Stopped`].
     pub fn stop(&mut self) {
-        if let Motion::Follow {
+        if let Some(id) = self.brake() {
+            self.finish(id, Err(FriError::Stopped { id }));
+        }
+    }
+
+    /// Turns a running trajectory into a stop profile (decelerate within its
+    /// limits, then hold); returns its id.
+    fn brake(&mut self) -> Option<u64> {
+        let Motion::Follow {
             id,
             trajectory,
             t_s,
+            ..
         } = &self.motion
-        {
-            let now = trajectory.sample(*t_s);
-            let profile = StopProfile::new(now.position, now.velocity, trajectory.limits());
-            let id = *id;
-            self.motion = Motion::Brake { profile, t_s: 0.0 };
-            self.finish(id, Err(FriError::Stopped { id }));
-        }
+        else {
+            return None;
+        };
+        let now = trajectory.sample(*t_s);
+        let profile = StopProfile::new(now.position, now.velocity, trajectory.limits());
+        let id = *id;
+        self.motion = Motion::Brake { profile, t_s: 0.0 };
+        Some(id)
     }
 
     /// Whether the arm is still moving under the driver's command (following or braking).
@@ -816,6 +919,8 @@ impl DriverCore {
             late: self.late,
             link: m.interface.stats,
             counters: self.counters,
+            est_ext_tcp_ft: m.data.est_ext_tcp_ft.map(f64::from),
+            moving: self.is_moving(),
         }
     }
 }
@@ -958,6 +1063,17 @@ impl FriDriver {
     /// Starts following `trajectory`; see [`DriverCore::start_trajectory`].
     pub fn start_trajectory(&self, trajectory: Trajectory<JOINTS>) -> Result<u64, FriError> {
         self.shared.lock().start_trajectory(trajectory)
+    }
+
+    /// Starts a guarded trajectory; see [`DriverCore::start_guarded_trajectory`].
+    pub fn start_guarded_trajectory(
+        &self,
+        trajectory: Trajectory<JOINTS>,
+        guard: ForceGuard,
+    ) -> Result<u64, FriError> {
+        self.shared
+            .lock()
+            .start_guarded_trajectory(trajectory, guard)
     }
 
     /// Waits for motion `id` to end and returns how it ended. On timeout the motion
