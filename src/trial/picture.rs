@@ -238,20 +238,27 @@ impl Raster<'_> {
         }
     }
 
-    /// Fills a triangle, flat shaded by its angle to the line of sight; `write`
-    /// says whether it updates the depth buffer (opaque) or only blends (faint).
-    fn triangle(&mut self, corners: &[Point3<f64>; 3], colour: Rgb, opacity: f64, write: bool) {
+    /// Fills a triangle of `part`, flat shaded by its angle to the optical axis
+    /// (the table unshaded); `write` says whether it updates the depth buffer
+    /// (opaque) or only blends (faint).
+    fn triangle(&mut self, corners: &[Point3<f64>; 3], part: Part, write: bool) {
+        let (colour, opacity, shaded) = (part.colour(), part.opacity(), part != Part::Table);
         let [a, b, c] = corners.map(|p| self.camera_from_base * p);
         if a.z <= NEAR_M || b.z <= NEAR_M || c.z <= NEAR_M {
             return;
         }
         let n = (b - a).cross(&(c - a));
-        let centre = (a.coords + b.coords + c.coords) / 3.0;
-        let (n_norm, c_norm) = (n.norm(), centre.norm());
-        if !(n_norm > 0.0 && c_norm > 0.0) {
+        let n_norm = n.norm();
+        if !(n_norm > 0.0) {
             return;
         }
-        let light = 0.35 + 0.65 * (n.dot(&centre) / (n_norm * c_norm)).abs();
+        // A head light along the optical axis: the same for every triangle of a
+        // plane, so flat surfaces show no seams.
+        let light = if shaded {
+            0.35 + 0.65 * (n.z / n_norm).abs()
+        } else {
+            1.0
+        };
         let shade = colour.map(|v| (v as f64 * light).min(255.0) as u8);
         let v = self.view;
         let px = |p: &Point3<f64>| (v.fx_px * p.x / p.z + v.cx_px, v.fy_px * p.y / p.z + v.cy_px);
@@ -336,15 +343,15 @@ fn draw_view(canvas: &mut Canvas, x0: usize, view: View, scene: &TrialScene, tit
     let opaque = scene.solids.iter().filter(|s| s.part.opacity() >= 1.0);
     for solid in opaque {
         for t in &solid.triangles {
-            raster.triangle(t, solid.part.colour(), 1.0, true);
+            raster.triangle(t, solid.part, true);
         }
     }
     for p in &scene.cloud_m {
-        raster.dot(p, 2, CLOUD_COLOUR, Some(0.004));
+        raster.dot(p, 2, CLOUD_COLOUR, Some(CLOUD_BIAS_M));
     }
     for solid in scene.solids.iter().filter(|s| s.part.opacity() < 1.0) {
         for t in &solid.triangles {
-            raster.triangle(t, solid.part.colour(), solid.part.opacity(), false);
+            raster.triangle(t, solid.part, false);
         }
     }
     for c in &scene.contacts_m {
@@ -353,6 +360,10 @@ fn draw_view(canvas: &mut Canvas, x0: usize, view: View, scene: &TrialScene, tit
     }
     canvas.text(x0 as i64 + 8, 8, title, 2, [40, 40, 40]);
 }
+
+/// How far behind the nearest surface a cloud point still shows (m): the cloud
+/// shows over the model it was registered to, not through the hand.
+const CLOUD_BIAS_M: f64 = 0.012;
 
 /// Height of the caption strip below the views (px).
 const CAPTION_LINE_PX: usize = 22;
