@@ -227,11 +227,18 @@ struct Raster<'a> {
     view: View,
     camera_from_base: Pose,
     depth_m: Vec<f64>,
+    /// Depth of the hand and the table alone: what hides the cloud (the cloud
+    /// shows through the models, so a model that misses it is seen to).
+    occluder_depth_m: Vec<f64>,
 }
 
 impl Raster<'_> {
     fn put(&mut self, x: usize, y: usize, colour: Rgb, opacity: f64) {
         let i = 3 * (y * self.canvas.width + self.x0 + x);
+        if opacity >= 1.0 {
+            self.canvas.rgb[i..i + 3].copy_from_slice(&colour);
+            return;
+        }
         for k in 0..3 {
             let old = self.canvas.rgb[i + k] as f64;
             self.canvas.rgb[i + k] = (old + opacity * (colour[k] as f64 - old)).round() as u8;
@@ -243,6 +250,7 @@ impl Raster<'_> {
     /// (opaque) or only blends (faint).
     fn triangle(&mut self, corners: &[Point3<f64>; 3], part: Part, write: bool) {
         let (colour, opacity, shaded) = (part.colour(), part.opacity(), part != Part::Table);
+        let occludes = matches!(part, Part::Hand | Part::Table);
         let [a, b, c] = corners.map(|p| self.camera_from_base * p);
         if a.z <= NEAR_M || b.z <= NEAR_M || c.z <= NEAR_M {
             return;
@@ -275,21 +283,31 @@ impl Raster<'_> {
         if xmin > xmax || ymin > ymax {
             return;
         }
-        let edge = |p: (f64, f64), q: (f64, f64), x: f64, y: f64| {
-            ((q.0 - p.0) * (y - p.1) - (q.1 - p.1) * (x - p.0)) / area
+        // Each barycentric weight is affine in the pixel: w = k0 + kx x + ky y.
+        let edge = |p: (f64, f64), q: (f64, f64)| {
+            let kx = -(q.1 - p.1) / area;
+            let ky = (q.0 - p.0) / area;
+            (-(kx * p.0 + ky * p.1), kx, ky)
         };
+        let weights = [edge(pb, pc), edge(pc, pa), edge(pa, pb)];
+        let inv_z = [1.0 / a.z, 1.0 / b.z, 1.0 / c.z];
         for y in ymin as usize..=ymax as usize {
+            let fy = y as f64;
+            let rows = weights.map(|(k0, _, ky)| k0 + ky * fy);
             for x in xmin as usize..=xmax as usize {
-                let (fx, fy) = (x as f64, y as f64);
-                let wa = edge(pb, pc, fx, fy);
-                let wb = edge(pc, pa, fx, fy);
-                let wc = edge(pa, pb, fx, fy);
+                let fx = x as f64;
+                let wa = rows[0] + weights[0].1 * fx;
+                let wb = rows[1] + weights[1].1 * fx;
+                let wc = rows[2] + weights[2].1 * fx;
                 if wa < 0.0 || wb < 0.0 || wc < 0.0 {
                     continue;
                 }
                 // Perspective-correct depth: interpolate 1/z.
-                let z = 1.0 / (wa / a.z + wb / b.z + wc / c.z);
+                let z = 1.0 / (wa * inv_z[0] + wb * inv_z[1] + wc * inv_z[2]);
                 let i = y * v.width_px + x;
+                if write && occludes && z < self.occluder_depth_m[i] {
+                    self.occluder_depth_m[i] = z;
+                }
                 if z < self.depth_m[i] {
                     if write {
                         self.depth_m[i] = z;
@@ -300,8 +318,9 @@ impl Raster<'_> {
         }
     }
 
-    /// A square dot of `size` px centred on `p`, depth-tested with `bias_m` of
-    /// slack (so points on a surface show), or on top of everything.
+    /// A square dot of `size` px centred on `p`, depth-tested against the hand and
+    /// the table with `bias_m` of slack (so points on the table show), or on top of
+    /// everything.
     fn dot(&mut self, p: &Point3<f64>, size: i64, colour: Rgb, bias_m: Option<f64>) {
         let Some((u, v, z)) = self.view.project(&self.camera_from_base, p) else {
             return;
@@ -316,7 +335,7 @@ impl Raster<'_> {
                 }
                 let (x, y) = (x as usize, y as usize);
                 let i = y * self.view.width_px + x;
-                if bias_m.is_none_or(|b| z - b < self.depth_m[i]) {
+                if bias_m.is_none_or(|b| z - b < self.occluder_depth_m[i]) {
                     self.put(x, y, colour, 1.0);
                 }
             }
@@ -339,6 +358,7 @@ fn draw_view(canvas: &mut Canvas, x0: usize, view: View, scene: &TrialScene, tit
         view,
         camera_from_base: view.base_from_camera.inverse(),
         depth_m: vec![f64::INFINITY; w * h],
+        occluder_depth_m: vec![f64::INFINITY; w * h],
     };
     let opaque = scene.solids.iter().filter(|s| s.part.opacity() >= 1.0);
     for solid in opaque {
@@ -346,13 +366,13 @@ fn draw_view(canvas: &mut Canvas, x0: usize, view: View, scene: &TrialScene, tit
             raster.triangle(t, solid.part, true);
         }
     }
-    for p in &scene.cloud_m {
-        raster.dot(p, 2, CLOUD_COLOUR, Some(CLOUD_BIAS_M));
-    }
     for solid in scene.solids.iter().filter(|s| s.part.opacity() < 1.0) {
         for t in &solid.triangles {
             raster.triangle(t, solid.part, false);
         }
+    }
+    for p in &scene.cloud_m {
+        raster.dot(p, 2, CLOUD_COLOUR, Some(CLOUD_BIAS_M));
     }
     for c in &scene.contacts_m {
         raster.dot(c, 9, [255, 255, 255], None);
@@ -361,8 +381,7 @@ fn draw_view(canvas: &mut Canvas, x0: usize, view: View, scene: &TrialScene, tit
     canvas.text(x0 as i64 + 8, 8, title, 2, [40, 40, 40]);
 }
 
-/// How far behind the nearest surface a cloud point still shows (m): the cloud
-/// shows over the model it was registered to, not through the hand.
+/// How far behind the hand or the table a cloud point still shows (m).
 const CLOUD_BIAS_M: f64 = 0.012;
 
 /// Height of the caption strip below the views (px).
