@@ -50,11 +50,16 @@ fn a_campaign_trial_has_a_picture_and_trial_show_writes_png_and_a_valid_glb() {
     assert!(rows[0].trial.campaign_id.is_some());
 
     // The log stage drew the picture and named it in the row.
-    let named = log.picture_path(id).unwrap().expect("picture named in the row");
+    let named = log
+        .picture_path(id)
+        .unwrap()
+        .expect("picture named in the row");
     let (w, h, rgb) = read_png(&named);
     assert!(w >= 960 && h >= 360, "{w}x{h}");
     let blue = count(&rgb, |c| c[2] > 150 && c[2] as i32 > c[0] as i32 + 80);
-    let orange = count(&rgb, |c| c[0] > 150 && c[0] as i32 > c[2] as i32 + 100 && c[1] > 60);
+    let orange = count(&rgb, |c| {
+        c[0] > 150 && c[0] as i32 > c[2] as i32 + 100 && c[1] > 60
+    });
     assert!(blue > 1000, "best model drawn: {blue} blue pixels");
     assert!(orange > 1000, "hand drawn: {orange} orange pixels");
 
@@ -89,7 +94,10 @@ fn a_campaign_trial_has_a_picture_and_trial_show_writes_png_and_a_valid_glb() {
         .filter_map(|n| n.name().map(str::to_string))
         .collect();
     for want in ["table", "segmented-cloud", "bh_palm", "robot_base"] {
-        assert!(names.iter().any(|n| n == want), "no node {want} in {names:?}");
+        assert!(
+            names.iter().any(|n| n == want),
+            "no node {want} in {names:?}"
+        );
     }
     let contacts = names.iter().filter(|n| n.starts_with("contact-")).count();
     assert_eq!(contacts as u64, shown["contacts"].as_u64().unwrap());
@@ -121,8 +129,27 @@ fn a_campaign_trial_has_a_picture_and_trial_show_writes_png_and_a_valid_glb() {
         png_path.to_str().unwrap(),
     ]);
     assert!(!ok && err.contains("no trial with id 999"), "{err}");
-    let (ok, _, err) = cell(&["trial", "show", &id.to_string(), "--log", log_path.to_str().unwrap()]);
+    let (ok, _, err) = cell(&[
+        "trial",
+        "show",
+        &id.to_string(),
+        "--log",
+        log_path.to_str().unwrap(),
+    ]);
     assert!(!ok && err.contains("--png"), "{err}");
+
+    // Without `show`, `cell trial` still takes a trial request (checked before it
+    // looks for a running cell).
+    let (ok, _, err) = cell(&[
+        "trial",
+        "--category",
+        "mug",
+        "--task",
+        "top",
+        "--timeout-s",
+        "0",
+    ]);
+    assert!(!ok && err.contains("--timeout-s 0"), "{err}");
 
     // The static report carries the charts and the trial's picture.
     let html_dir = dir.join("html");
@@ -136,7 +163,10 @@ fn a_campaign_trial_has_a_picture_and_trial_show_writes_png_and_a_valid_glb() {
     assert!(ok, "report --html failed:\n{out}\n{err}");
     let index = std::fs::read_to_string(html_dir.join("index.html")).unwrap();
     let picture = format!("pictures/{id}.png");
-    assert!(index.contains(&picture) && index.contains("outcomes.png"), "{index}");
+    assert!(
+        index.contains(&picture) && index.contains("outcomes.png"),
+        "{index}"
+    );
     assert!(index.contains("id=\"table2\""));
     assert_eq!(read_png(&html_dir.join(&picture)).2, rgb);
     read_png(&html_dir.join("failure_causes.png"));

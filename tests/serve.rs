@@ -69,8 +69,13 @@ fn fixture_log(dir: &Path) -> (PathBuf, TrialId, TrialId) {
         solids: vec![
             Solid::table([0.65, 0.0], [0.8, 1.2], 0.0),
             Solid::from_mesh("mug-1", Part::BestModel, &mug, &at),
-            Solid::from_shape("bh_palm", Part::Hand, &hand, &Pose::translation(0.6, 0.0, 0.2))
-                .unwrap(),
+            Solid::from_shape(
+                "bh_palm",
+                Part::Hand,
+                &hand,
+                &Pose::translation(0.6, 0.0, 0.2),
+            )
+            .unwrap(),
         ],
         contacts_m: vec![Point3::new(0.6, 0.04, 0.08)],
         base_from_camera: graspcell::geometry::look_at_optical(
@@ -200,21 +205,38 @@ fn a_write_without_the_token_is_refused_and_changes_nothing() {
     let before = snapshot(&log_path);
     for (body, headers) in [
         (format!("trial={b}&grade=success"), String::new()),
-        (format!("trial={b}&grade=success&token=wrong-token-0123456789"), String::new()),
+        (
+            format!("trial={b}&grade=success&token=wrong-token-0123456789"),
+            String::new(),
+        ),
         (format!("trial={b}&grade=success&token="), String::new()),
         (
             format!("trial={b}&grade=success"),
             "Authorization: Bearer nope-nope-nope-nope\r\n".to_string(),
         ),
         // The token with one character missing.
-        (format!("trial={b}&grade=success&token={}", &TOKEN[..TOKEN.len() - 1]), String::new()),
+        (
+            format!(
+                "trial={b}&grade=success&token={}",
+                &TOKEN[..TOKEN.len() - 1]
+            ),
+            String::new(),
+        ),
     ] {
         let (status, text) = post_form(server.addr, &body, &headers);
         assert_eq!(status, 401, "{body}: {text}");
     }
-    assert_eq!(snapshot(&log_path), before, "a refused write changed the log");
+    assert_eq!(
+        snapshot(&log_path),
+        before,
+        "a refused write changed the log"
+    );
     // With the token (form field or bearer header) the same write goes through.
-    let (status, _) = post_form(server.addr, &format!("trial={b}&grade=success&token={TOKEN}"), "");
+    let (status, _) = post_form(
+        server.addr,
+        &format!("trial={b}&grade=success&token={TOKEN}"),
+        "",
+    );
     assert_eq!(status, 303);
     let (status, _) = post_form(
         server.addr,
@@ -224,7 +246,10 @@ fn a_write_without_the_token_is_refused_and_changes_nothing() {
     assert_eq!(status, 303);
     let log = TrialLog::open_existing(&log_path).unwrap();
     let grading = log.trial(b).unwrap().grading.unwrap();
-    assert_eq!((grading.grade, grading.cause), (Grade::Partial, Some(FailureCause::Execution)));
+    assert_eq!(
+        (grading.grade, grading.cause),
+        (Grade::Partial, Some(FailureCause::Execution))
+    );
     assert_eq!(log.grade_history(b).unwrap().len(), 2);
     drop(server);
     let _ = std::fs::remove_dir_all(&dir);
@@ -240,8 +265,14 @@ fn malformed_or_huge_requests_get_4xx_and_change_nothing() {
     let cases: Vec<(String, u16)> = vec![
         (format!("trial={a}&grade=excellent&token={t}"), 400),
         (format!("trial={a}&grade=failure&token={t}"), 400), // failure without cause
-        (format!("trial={a}&grade=success&cause=registration&token={t}"), 400),
-        (format!("trial={a}&grade=partial&cause=gremlins&token={t}"), 400),
+        (
+            format!("trial={a}&grade=success&cause=registration&token={t}"),
+            400,
+        ),
+        (
+            format!("trial={a}&grade=partial&cause=gremlins&token={t}"),
+            400,
+        ),
         (format!("trial=abc&grade=success&token={t}"), 400),
         (format!("trial=-3&grade=success&token={t}"), 400),
         (format!("trial=9999&grade=success&token={t}"), 404),
@@ -249,7 +280,10 @@ fn malformed_or_huge_requests_get_4xx_and_change_nothing() {
         (format!("trial={a}&token={t}"), 400),
         (format!("trial={a}&trial={a}&grade=success&token={t}"), 400),
         (format!("trial={a}&grade=success&admin=1&token={t}"), 400),
-        (format!("trial={a}&grade=partial&note={}&token={t}", "x".repeat(600)), 400),
+        (
+            format!("trial={a}&grade=partial&note={}&token={t}", "x".repeat(600)),
+            400,
+        ),
         (format!("trial={a}&grade=success&token={t}&%ff%fe=1"), 400),
     ];
     for (body, want) in &cases {
@@ -269,7 +303,10 @@ fn malformed_or_huge_requests_get_4xx_and_change_nothing() {
     let mut bad = b"POST /grade HTTP/1.1\r\nHost: x\r\nContent-Type: application/x-www-form-urlencoded\r\nContent-Length: 4\r\nConnection: close\r\n\r\n".to_vec();
     bad.extend_from_slice(&[0xff, 0xfe, b'=', b'1']);
     assert_eq!(raw_http(server.addr, &bad).0, 400);
-    let huge = format!("trial={a}&grade=success&token={t}&note={}", "y".repeat(4 * MAX_BODY_BYTES));
+    let huge = format!(
+        "trial={a}&grade=success&token={t}&note={}",
+        "y".repeat(4 * MAX_BODY_BYTES)
+    );
     assert_eq!(post_form(server.addr, &huge, "").0, 413);
     let declared = format!(
         "POST /grade HTTP/1.1\r\nHost: x\r\nContent-Type: application/x-www-form-urlencoded\r\nContent-Length: 1000000000\r\nConnection: close\r\n\r\ntrial={a}"
@@ -282,16 +319,28 @@ fn malformed_or_huge_requests_get_4xx_and_change_nothing() {
     );
     assert_eq!(raw_http(server.addr, chunked.as_bytes()).0, 413);
     assert_eq!(
-        raw_http(server.addr, b"GET /grade HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").0,
+        raw_http(
+            server.addr,
+            b"GET /grade HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        )
+        .0,
         405
     );
     let (status, _) = raw_http(server.addr, b"BLAH\r\n\r\n");
     assert!((400..500).contains(&status), "{status}");
     assert_eq!(
-        raw_http(server.addr, b"GET /picture/../../etc/passwd HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").0,
+        raw_http(
+            server.addr,
+            b"GET /picture/../../etc/passwd HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        )
+        .0,
         404
     );
-    assert_eq!(snapshot(&log_path), before, "a refused request changed the log");
+    assert_eq!(
+        snapshot(&log_path),
+        before,
+        "a refused request changed the log"
+    );
     drop(server);
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -356,7 +405,10 @@ impl Driver {
                     break;
                 }
             }
-            assert!(Instant::now() < deadline, "chromedriver did not come up on port {port}");
+            assert!(
+                Instant::now() < deadline,
+                "chromedriver did not come up on port {port}"
+            );
             std::thread::sleep(Duration::from_millis(100));
         }
         let profile = dir.join("chromium-profile");
@@ -419,7 +471,10 @@ impl Drop for Driver {
             let addr: SocketAddr = self.base.trim_start_matches("http://").parse().unwrap();
             let _ = raw_http(
                 addr,
-                format!("DELETE /session/{s} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n").as_bytes(),
+                format!(
+                    "DELETE /session/{s} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+                )
+                .as_bytes(),
             );
         }
         let _ = self.child.kill();
@@ -449,12 +504,17 @@ fn grading_in_headless_chromium_writes_the_row_and_keeps_the_history() {
         }
         std::thread::sleep(Duration::from_millis(100));
     };
-    assert!(width >= 480, "the trial picture did not load: width {width}");
+    assert!(
+        width >= 480,
+        "the trial picture did not load: width {width}"
+    );
 
     // Choose a cause and click "partial".
     let option = driver.find(&format!("#cause-{a} option[value='registration']"));
     driver.cmd("POST", &format!("element/{option}/click"), Some(json!({})));
-    let selected = driver.script(&format!("return document.getElementById('cause-{a}').value;"));
+    let selected = driver.script(&format!(
+        "return document.getElementById('cause-{a}').value;"
+    ));
     assert_eq!(selected, json!("registration"));
     let button = driver.find(&format!("#partial-{a}"));
     let text = driver.cmd("GET", &format!("element/{button}/text"), None);
@@ -465,10 +525,17 @@ fn grading_in_headless_chromium_writes_the_row_and_keeps_the_history() {
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
         let current = driver.cmd("GET", "url", None);
-        if current.as_str().unwrap_or("").contains(&format!("graded={a}")) {
+        if current
+            .as_str()
+            .unwrap_or("")
+            .contains(&format!("graded={a}"))
+        {
             break;
         }
-        assert!(Instant::now() < deadline, "no redirect after grading: {current}");
+        assert!(
+            Instant::now() < deadline,
+            "no redirect after grading: {current}"
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
     let shown = driver.script(&format!(

@@ -248,15 +248,59 @@ pub fn log(which: LogCommand) -> anyhow::Result<ExitCode> {
 }
 
 /// `cell trial ...`: send a trial request to a running cell, or `show` a recorded one.
-#[derive(Debug, Args)]
-#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+///
+/// Parsed by hand (below): the request's arguments are required only without a
+/// subcommand.
+#[derive(Debug)]
 pub struct TrialCommandArgs {
     /// What to do with a recorded trial.
-    #[command(subcommand)]
     pub action: Option<TrialAction>,
     /// The trial request (without a subcommand).
-    #[command(flatten)]
     pub request: Option<super::cell::TrialArgs>,
+}
+
+impl clap::FromArgMatches for TrialCommandArgs {
+    fn from_arg_matches(matches: &clap::ArgMatches) -> Result<Self, clap::Error> {
+        Self::from_arg_matches_mut(&mut matches.clone())
+    }
+
+    fn from_arg_matches_mut(matches: &mut clap::ArgMatches) -> Result<Self, clap::Error> {
+        if matches.subcommand_name().is_some() {
+            Ok(TrialCommandArgs {
+                action: Some(<TrialAction as clap::FromArgMatches>::from_arg_matches_mut(
+                    matches,
+                )?),
+                request: None,
+            })
+        } else {
+            Ok(TrialCommandArgs {
+                action: None,
+                request: Some(
+                    <super::cell::TrialArgs as clap::FromArgMatches>::from_arg_matches_mut(
+                        matches,
+                    )?,
+                ),
+            })
+        }
+    }
+
+    fn update_from_arg_matches(&mut self, matches: &clap::ArgMatches) -> Result<(), clap::Error> {
+        *self = Self::from_arg_matches(matches)?;
+        Ok(())
+    }
+}
+
+impl clap::Args for TrialCommandArgs {
+    fn augment_args(cmd: clap::Command) -> clap::Command {
+        let cmd = <super::cell::TrialArgs as clap::Args>::augment_args(cmd);
+        <TrialAction as clap::Subcommand>::augment_subcommands(cmd)
+            .args_conflicts_with_subcommands(true)
+            .subcommand_negates_reqs(true)
+    }
+
+    fn augment_args_for_update(cmd: clap::Command) -> clap::Command {
+        Self::augment_args(cmd)
+    }
 }
 
 /// Subcommands of `cell trial`.
@@ -502,7 +546,10 @@ pub struct PictureBenchArgs {
 }
 
 /// Runs `cell bench picture`.
-pub fn bench_picture(config_path: &std::path::Path, args: PictureBenchArgs) -> anyhow::Result<ExitCode> {
+pub fn bench_picture(
+    config_path: &std::path::Path,
+    args: PictureBenchArgs,
+) -> anyhow::Result<ExitCode> {
     use std::time::Instant;
     anyhow::ensure!(args.repeats > 0, "--repeats must be at least 1");
     let config = crate::config::CellConfig::load(config_path)?;

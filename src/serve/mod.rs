@@ -213,11 +213,7 @@ pub struct Handler {
 
 fn query_pairs(url: &str) -> Vec<(String, String)> {
     url.split_once('?')
-        .map(|(_, q)| {
-            form_urlencoded::parse(q.as_bytes())
-                .into_owned()
-                .collect()
-        })
+        .map(|(_, q)| form_urlencoded::parse(q.as_bytes()).into_owned().collect())
         .unwrap_or_default()
 }
 
@@ -250,7 +246,11 @@ impl Handler {
             }
             ("POST", "/grade") => self.grade(req),
             (_, "/" | "/report" | "/grade") => Ok(Answer::text(405, "method not allowed")),
-            (_, p) if p.starts_with("/picture/") || p.starts_with("/trial/") || p.starts_with("/chart/") => {
+            (_, p)
+                if p.starts_with("/picture/")
+                    || p.starts_with("/trial/")
+                    || p.starts_with("/chart/") =>
+            {
                 Ok(Answer::text(405, "method not allowed"))
             }
             _ => Ok(Answer::text(404, "not found")),
@@ -282,7 +282,11 @@ impl Handler {
             .collect()
     }
 
-    fn grading_page(&self, req: &Incoming<'_>, message: Option<&str>) -> Result<Answer, TrialError> {
+    fn grading_page(
+        &self,
+        req: &Incoming<'_>,
+        message: Option<&str>,
+    ) -> Result<Answer, TrialError> {
         let log = TrialLog::open_existing(&self.options.log_path)?;
         let trials = self.trials(&log)?;
         let histories = trials
@@ -369,12 +373,22 @@ impl Handler {
     }
 
     fn grade(&self, req: &Incoming<'_>) -> Result<Answer, TrialError> {
-        if req.content_length.is_some_and(|n| n > MAX_BODY_BYTES) || req.body.len() > MAX_BODY_BYTES {
-            return Ok(Answer::text(413, format!("request body over {MAX_BODY_BYTES} bytes")));
+        if req.content_length.is_some_and(|n| n > MAX_BODY_BYTES) || req.body.len() > MAX_BODY_BYTES
+        {
+            return Ok(Answer::text(
+                413,
+                format!("request body over {MAX_BODY_BYTES} bytes"),
+            ));
         }
         let form_type = req
             .content_type
-            .map(|c| c.split(';').next().unwrap_or("").trim().eq_ignore_ascii_case("application/x-www-form-urlencoded"))
+            .map(|c| {
+                c.split(';')
+                    .next()
+                    .unwrap_or("")
+                    .trim()
+                    .eq_ignore_ascii_case("application/x-www-form-urlencoded")
+            })
             .unwrap_or(false);
         if !form_type {
             return Ok(Answer::text(
@@ -425,8 +439,14 @@ impl Handler {
         let Some(grade) = grade else {
             return Ok(Answer::text(400, "field grade missing"));
         };
-        if note.as_ref().is_some_and(|n| n.chars().count() > MAX_NOTE_CHARS) {
-            return Ok(Answer::text(400, format!("note over {MAX_NOTE_CHARS} characters")));
+        if note
+            .as_ref()
+            .is_some_and(|n| n.chars().count() > MAX_NOTE_CHARS)
+        {
+            return Ok(Answer::text(
+                400,
+                format!("note over {MAX_NOTE_CHARS} characters"),
+            ));
         }
         let grading = match Grading::parse(&grade, cause.as_deref(), note) {
             Ok(g) => g,
@@ -469,13 +489,10 @@ impl Server {
             addr: options.bind,
             detail: e.to_string(),
         })?;
-        let addr = http
-            .server_addr()
-            .to_ip()
-            .ok_or_else(|| ServeError::Bind {
-                addr: options.bind,
-                detail: "not an IP socket".into(),
-            })?;
+        let addr = http.server_addr().to_ip().ok_or_else(|| ServeError::Bind {
+            addr: options.bind,
+            detail: "not an IP socket".into(),
+        })?;
         Ok(Server {
             http,
             handler,
@@ -535,9 +552,11 @@ impl Server {
             content_length,
         });
         tracing::debug!(%method, %url, status = answer.status, "request");
-        let mut response = tiny_http::Response::from_data(answer.body)
-            .with_status_code(answer.status);
-        if let Ok(h) = tiny_http::Header::from_bytes(&b"Content-Type"[..], answer.content_type.as_bytes()) {
+        let mut response =
+            tiny_http::Response::from_data(answer.body).with_status_code(answer.status);
+        if let Ok(h) =
+            tiny_http::Header::from_bytes(&b"Content-Type"[..], answer.content_type.as_bytes())
+        {
             response.add_header(h);
         }
         if let Some(to) = &answer.location {

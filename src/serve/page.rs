@@ -132,7 +132,11 @@ pub fn grading_page(
                 out,
                 "<option value=\"{c}\"{sel}>{c}</option>",
                 c = cause.as_str(),
-                sel = if current == Some(cause) { " selected" } else { "" }
+                sel = if current == Some(cause) {
+                    " selected"
+                } else {
+                    ""
+                }
             );
         }
         let _ = write!(
@@ -143,7 +147,11 @@ pub fn grading_page(
              <button type=\"submit\" name=\"grade\" value=\"failure\" id=\"failure-{id}\">failure</button></form>"
         );
         if !view.history.is_empty() {
-            let _ = write!(out, "<details><summary>history ({})</summary><ol>", view.history.len());
+            let _ = write!(
+                out,
+                "<details><summary>history ({})</summary><ol>",
+                view.history.len()
+            );
             for e in view.history {
                 let _ = write!(
                     out,
@@ -227,7 +235,12 @@ pub fn report_page(report: &Report, chart_srcs: [&str; 2], trials: &[TrialView<'
             let _ = writeln!(
                 out,
                 "{}",
-                escape(&format!("{} vs {}: {}", c.a, c.b, serde_json::to_string(&c.test).unwrap_or_default()))
+                escape(&format!(
+                    "{} vs {}: {}",
+                    c.a,
+                    c.b,
+                    serde_json::to_string(&c.test).unwrap_or_default()
+                ))
             );
         }
         out.push_str("</pre>");

@@ -253,11 +253,18 @@ pub fn to_glb(scene: &TrialScene, path_for_errors: &Path) -> Result<Vec<u8>, Tri
     }
     let cloud: Vec<[f32; 3]> = scene.cloud_m.iter().map(f32x3).collect();
     let grey = b.material("cloud", rgba(CLOUD_COLOUR, 1.0));
-    b.node("segmented-cloud", &cloud, None, json::mesh::Mode::Points, grey);
+    b.node(
+        "segmented-cloud",
+        &cloud,
+        None,
+        json::mesh::Mode::Points,
+        grey,
+    );
     let ball = parry3d_f64::shape::SharedShape::ball(CONTACT_RADIUS_M);
     for (i, c) in scene.contacts_m.iter().enumerate() {
         let pose = crate::geometry::Pose::translation(c.x, c.y, c.z);
-        if let Some(mut solid) = Solid::from_shape(&format!("contact-{i}"), Part::Hand, &ball, &pose)
+        if let Some(mut solid) =
+            Solid::from_shape(&format!("contact-{i}"), Part::Hand, &ball, &pose)
         {
             solid.name = format!("contact-{i}");
             let red = b.material("contact", rgba(CONTACT_COLOUR, 1.0));

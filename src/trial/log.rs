@@ -51,10 +51,11 @@ pub(crate) struct Migration {
 }
 
 /// The schema's history; the last entry is the current version.
-pub(crate) const MIGRATIONS: &[Migration] = &[Migration {
-    version: 1,
-    description: "trials and grade_history",
-    sql: r#"
+pub(crate) const MIGRATIONS: &[Migration] = &[
+    Migration {
+        version: 1,
+        description: "trials and grade_history",
+        sql: r#"
 CREATE TABLE trials (
     id               INTEGER PRIMARY KEY AUTOINCREMENT,
     started_at       TEXT    NOT NULL,
@@ -95,11 +96,13 @@ CREATE TABLE grade_history (
 );
 CREATE INDEX grade_history_trial ON grade_history (trial_id);
 "#,
-}, Migration {
-    version: 2,
-    description: "trial picture path",
-    sql: "ALTER TABLE trials ADD COLUMN picture_path TEXT;",
-}];
+    },
+    Migration {
+        version: 2,
+        description: "trial picture path",
+        sql: "ALTER TABLE trials ADD COLUMN picture_path TEXT;",
+    },
+];
 
 /// The newest schema version this build writes.
 pub const SCHEMA_VERSION: i64 = MIGRATIONS[MIGRATIONS.len() - 1].version;

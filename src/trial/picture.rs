@@ -329,7 +329,10 @@ impl Raster<'_> {
         let r = size / 2;
         for y in v - r..v - r + size {
             for x in u - r..u - r + size {
-                if x < 0 || y < 0 || x >= self.view.width_px as i64 || y >= self.view.height_px as i64
+                if x < 0
+                    || y < 0
+                    || x >= self.view.width_px as i64
+                    || y >= self.view.height_px as i64
                 {
                     continue;
                 }

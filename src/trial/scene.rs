@@ -100,12 +100,13 @@ pub fn caption(record: &TrialRecord, notes: &[String]) -> Vec<String> {
         .and_then(Value::as_f64)
         .filter(|s| *s > 0.0)
         .map_or("-".to_string(), |s| format!("{s:.2} S"));
-    let grade = record.grading.as_ref().map_or("UNGRADED".to_string(), |g| {
-        match g.cause {
+    let grade = record
+        .grading
+        .as_ref()
+        .map_or("UNGRADED".to_string(), |g| match g.cause {
             Some(c) => format!("{} ({c})", g.grade),
             None => g.grade.to_string(),
-        }
-    });
+        });
     let mut lines = vec![
         format!(
             "TRIAL {}  {} / {}  METHOD {}  OBJECT {} P{}",
@@ -136,16 +137,16 @@ pub fn trial_scene(record: &TrialRecord, inputs: &SceneInputs<'_>) -> TrialScene
             notes.push("NO SNAPSHOT".into());
             Vec::new()
         }
-        Some(path) => match crate::cloud::io::read_cloud(path).map_err(|e| e.to_string()).and_then(
-            |cloud| {
+        Some(path) => match crate::cloud::io::read_cloud(path)
+            .map_err(|e| e.to_string())
+            .and_then(|cloud| {
                 crate::cloud::segment::segment_object(
                     &cloud,
                     &inputs.base_from_camera,
                     &crate::cloud::segment::SegmentParams::for_cell(inputs.config),
                 )
                 .map_err(|e| e.to_string())
-            },
-        ) {
+            }) {
             Ok(object) => object
                 .valid_points()
                 .map(|p| Point3::new(p.x as f64, p.y as f64, p.z as f64))
@@ -163,9 +164,10 @@ pub fn trial_scene(record: &TrialRecord, inputs: &SceneInputs<'_>) -> TrialScene
     match inputs.db {
         Some(db) => {
             for (rank, fit) in fits.iter().enumerate() {
-                let (Some(mesh), Some(entry)) =
-                    (db.meshes.get(fit.model_id), db.file.models.get(fit.model_id))
-                else {
+                let (Some(mesh), Some(entry)) = (
+                    db.meshes.get(fit.model_id),
+                    db.file.models.get(fit.model_id),
+                ) else {
                     continue;
                 };
                 let part = if rank == 0 {
@@ -253,7 +255,13 @@ pub fn trial_scene(record: &TrialRecord, inputs: &SceneInputs<'_>) -> TrialScene
 
 fn centroid(points: &[Point3<f64>]) -> Option<Point3<f64>> {
     (!points.is_empty()).then(|| {
-        Point3::from(points.iter().map(|p| p.coords).sum::<nalgebra::Vector3<f64>>() / points.len() as f64)
+        Point3::from(
+            points
+                .iter()
+                .map(|p| p.coords)
+                .sum::<nalgebra::Vector3<f64>>()
+                / points.len() as f64,
+        )
     })
 }
 
