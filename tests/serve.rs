@@ -294,10 +294,7 @@ fn malformed_or_huge_requests_get_4xx_and_change_nothing() {
     // the write endpoint; a request line that is not HTTP.
     let (status, _) = raw_http(
         server.addr,
-        format!(
-            "POST /grade HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 2\r\nConnection: close\r\n\r\n{{}}"
-        )
-        .as_bytes(),
+        b"POST /grade HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 2\r\nConnection: close\r\n\r\n{}",
     );
     assert_eq!(status, 415);
     let mut bad = b"POST /grade HTTP/1.1\r\nHost: x\r\nContent-Type: application/x-www-form-urlencoded\r\nContent-Length: 4\r\nConnection: close\r\n\r\n".to_vec();

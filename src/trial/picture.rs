@@ -239,9 +239,9 @@ impl Raster<'_> {
             self.canvas.rgb[i..i + 3].copy_from_slice(&colour);
             return;
         }
-        for k in 0..3 {
-            let old = self.canvas.rgb[i + k] as f64;
-            self.canvas.rgb[i + k] = (old + opacity * (colour[k] as f64 - old)).round() as u8;
+        for (dst, &c) in self.canvas.rgb[i..i + 3].iter_mut().zip(&colour) {
+            let old = *dst as f64;
+            *dst = (old + opacity * (c as f64 - old)).round() as u8;
         }
     }
 
@@ -257,7 +257,7 @@ impl Raster<'_> {
         }
         let n = (b - a).cross(&(c - a));
         let n_norm = n.norm();
-        if !(n_norm > 0.0) {
+        if n_norm.is_nan() || n_norm <= 0.0 {
             return;
         }
         // A head light along the optical axis: the same for every triangle of a
