@@ -28,6 +28,7 @@ pub mod ply;
 pub mod quality;
 pub mod register;
 pub mod robot;
+pub mod serve;
 pub mod sim;
 pub mod stats;
 pub mod trajectory;

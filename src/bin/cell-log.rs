@@ -22,6 +22,9 @@ struct Args {
     /// Longest a trial may take before it is recorded as timed out (s).
     #[arg(long, default_value_t = 120.0)]
     trial_timeout_s: f64,
+    /// Directory of the category databases (model meshes for the trial pictures).
+    #[arg(long, default_value = "db")]
+    db_dir: PathBuf,
 }
 
 fn main() -> std::process::ExitCode {
@@ -36,6 +39,7 @@ fn main() -> std::process::ExitCode {
             run_dir: args.stage.run_dir.clone(),
             observer: args.observer,
             trial_timeout_s: args.trial_timeout_s,
+            db_dir: args.db_dir.clone(),
         };
         log::run(&config, &args.stage.domain()?, options)
     })

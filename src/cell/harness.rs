@@ -388,6 +388,8 @@ impl Cell {
                 self.options.log_path.display().to_string(),
                 "--trial-timeout-s".into(),
                 self.options.trial_timeout_s.to_string(),
+                "--db-dir".into(),
+                self.options.db_dir.display().to_string(),
             ]),
             _ => {}
         }

@@ -54,6 +54,8 @@ pub struct LogOptions {
     pub observer: ObserverKind,
     /// Longest a trial may take from request to the executor's end (s).
     pub trial_timeout_s: f64,
+    /// The category databases (model meshes for the trial pictures).
+    pub db_dir: PathBuf,
 }
 
 /// One trial being followed.
@@ -202,6 +204,13 @@ struct Logger {
     observer: Option<Observer>,
     robot: Robot,
     trials: BTreeMap<u64, Trial>,
+    /// The grasp simulator's hand (the pictures close its fingers).
+    hand: crate::robot::hand::HandModel,
+    /// Category databases loaded for the pictures (`None`: could not be loaded).
+    dbs: BTreeMap<String, Option<crate::category::CategoryDb>>,
+    /// Recorded trials whose picture is still to be drawn.
+    pictures_due: Vec<crate::trial::TrialId>,
+    config: CellConfig,
 }
 
 impl Logger {
@@ -325,6 +334,44 @@ impl Logger {
         }
     }
 
+    /// Draws the picture of every recorded trial that has none yet, writes it to
+    /// `<run dir>/pictures/<id>.png` and names it in the trial's row. A picture
+    /// that cannot be drawn is logged; the trial stays recorded.
+    fn draw_pictures(&mut self) {
+        for id in std::mem::take(&mut self.pictures_due) {
+            if let Err(e) = self.draw_picture(id) {
+                tracing::error!(log_id = id, "trial picture not written: {e}");
+            }
+        }
+    }
+
+    fn draw_picture(&mut self, id: crate::trial::TrialId) -> Result<(), CellError> {
+        let record = self.log.trial(id)?;
+        let category = record.trial.category.clone();
+        let db_dir = self.options.db_dir.clone();
+        let db = self
+            .dbs
+            .entry(category.clone())
+            .or_insert_with(|| {
+                super::load_category(&db_dir, &category)
+                    .map_err(|e| tracing::warn!("trial pictures without models: {e}"))
+                    .ok()
+            })
+            .as_ref();
+        let inputs = crate::trial::scene::SceneInputs {
+            config: &self.config,
+            robot: &self.robot,
+            hand: &self.hand,
+            db,
+            base_from_camera: self.config.base_from_camera(),
+        };
+        let scene = crate::trial::scene::trial_scene(&record, &inputs);
+        let path = picture_path(&self.options.run_dir, id);
+        crate::trial::picture::write_png(&scene, &path)?;
+        self.log.set_picture(id, &path)?;
+        Ok(())
+    }
+
     /// Grades, records and returns the result of a finished trial.
     fn finish(&mut self, trial: Trial, ending: Ending) -> Result<TrialResult, CellError> {
         let trial_id = trial.request.trial_id;
@@ -398,6 +445,8 @@ impl Logger {
                 "epsilon": seen.as_ref().map(|s| s.epsilon),
                 "contacts": seen.as_ref().map(|s| s.contacts),
                 "registration_error_m": seen.as_ref().and_then(|s| s.registration_error_m),
+                "closing_joints_rad": trial.closing_joints,
+                "spread_rad": trial.plan.map(|p| p.spread_rad),
                 "timings_s": timings,
                 "gravity": gravity,
                 "raw_frame": raw_frame.join(crate::hw::kinect::fakenect::INDEX_FILE).is_file().then_some(raw_frame),
@@ -406,6 +455,7 @@ impl Logger {
         };
         let id = self.log.record_trial(&new)?;
         self.log.grade(id, &grading, source, UtcTimestamp::now())?;
+        self.pictures_due.push(id);
         tracing::info!(trial_id, log_id = id, %grading, "trial graded");
         let cause = match ending {
             Ending::StageDied(_) => IpcCause::StageDied,
@@ -421,6 +471,11 @@ impl Logger {
             timings,
         ))
     }
+}
+
+/// Where the picture of the trial logged as `log_id` is kept.
+pub fn picture_path(run_dir: &Path, log_id: crate::trial::TrialId) -> PathBuf {
+    run_dir.join("pictures").join(format!("{log_id}.png"))
 }
 
 /// Where the snapshot of trial `trial_id` is kept: a binary PCD in the camera's
@@ -482,6 +537,10 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
     };
     let mut logger = Logger {
         robot: Robot::load(config)?,
+        hand: crate::robot::hand::HandModel::load(config)?,
+        dbs: BTreeMap::new(),
+        pictures_due: Vec::new(),
+        config: config.clone(),
         options,
         log,
         observer,
@@ -609,6 +668,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             };
             results.send(&result)?;
         }
+        logger.draw_pictures();
     }
     notify::stopping();
     Ok(())

@@ -34,6 +34,9 @@ pub enum BenchCommand {
     Camera(super::camera::CameraBenchArgs),
     /// Registration: one partial mug view (~6k and ~28k points) against 11 models; per-stage medians.
     Register(super::perceive::RegisterBenchArgs),
+    /// Trial picture: median time to render one logged trial's picture (both views,
+    /// caption) and to encode it as PNG; the scene's assembly timed apart.
+    Picture(super::trial::PictureBenchArgs),
 }
 
 /// Options of `cell bench ik`.
@@ -149,6 +152,7 @@ pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Plan(args) => super::plan::bench(config, args),
         BenchCommand::Register(args) => super::perceive::bench(config, args),
         BenchCommand::Camera(args) => super::camera::bench_camera(config, args),
+        BenchCommand::Picture(args) => super::trial::bench_picture(config, args),
     }
 }
 

@@ -85,8 +85,11 @@ pub enum Command {
     Demo(cell::DemoArgs),
     /// Run the cell with the configured backends until Ctrl-C; `cell trial` sends it work.
     Run(cell::RunArgs),
-    /// Send one trial request to a running cell (`cell run`) and print its result.
-    Trial(cell::TrialArgs),
+    /// Send one trial request to a running cell (`cell run`) and print its result;
+    /// `cell trial show ID --png FILE --glb FILE` draws a recorded trial.
+    Trial(trial::TrialCommandArgs),
+    /// The grading page and the report in a browser, over a trial log.
+    Serve(trial::ServeArgs),
     /// The paper's robot protocol in the simulated cell: novel objects x placements x
     /// methods, paired, graded by the simulated observer, resumable.
     Campaign(cell::CampaignArgs),
@@ -148,7 +151,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::IpcPeer(args) => ipc::run_peer(args),
         Command::Demo(args) => cell::demo(&cli.config, args),
         Command::Run(args) => cell::run(&cli.config, args),
-        Command::Trial(args) => cell::trial(&cli.config, args),
+        Command::Trial(args) => trial::trial_command(&cli.config, args),
+        Command::Serve(args) => trial::serve(args),
         Command::Campaign(args) => cell::campaign(&cli.config, args),
         Command::Segment(args) => perceive::segment(&cli.config, args),
         Command::Register(args) => perceive::register(&cli.config, args),

@@ -1,4 +1,5 @@
-//! `cell grade`, `cell report`, `cell log import` and `cell log export`.
+//! `cell grade`, `cell report`, `cell log import` and `cell log export`, `cell trial
+//! show` (a trial's picture and 3-D scene) and `cell serve` (the grading page).
 
 use crate::trial::csv::ImportSummary;
 use crate::trial::log::DEFAULT_LOG_PATH;
@@ -54,6 +55,10 @@ pub struct ReportArgs {
     /// Also print the failure causes next to the paper's Table 2.
     #[arg(long)]
     pub paper: bool,
+    /// Also write the report as a static web page into this directory
+    /// (index.html, the charts and every trial's picture).
+    #[arg(long)]
+    pub html: Option<PathBuf>,
 }
 
 /// `cell log ...`: grades kept on paper in and out.
@@ -171,6 +176,10 @@ pub fn report(args: ReportArgs) -> anyhow::Result<ExitCode> {
         Some(dir) => plot::write_charts(&report, dir)?,
         None => Vec::new(),
     };
+    let mut charts = charts;
+    if let Some(dir) = &args.html {
+        charts.push(write_html_report(&log, &trials, &report, dir)?);
+    }
     for c in &charts {
         tracing::info!("wrote {}", c.display());
     }
@@ -235,5 +244,365 @@ pub fn log(which: LogCommand) -> anyhow::Result<ExitCode> {
             }
         }
     }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `cell trial ...`: send a trial request to a running cell, or `show` a recorded one.
+///
+/// Parsed by hand (below): the request's arguments are required only without a
+/// subcommand.
+#[derive(Debug)]
+pub struct TrialCommandArgs {
+    /// What to do with a recorded trial.
+    pub action: Option<TrialAction>,
+    /// The trial request (without a subcommand).
+    pub request: Option<super::cell::TrialArgs>,
+}
+
+impl clap::FromArgMatches for TrialCommandArgs {
+    fn from_arg_matches(matches: &clap::ArgMatches) -> Result<Self, clap::Error> {
+        Self::from_arg_matches_mut(&mut matches.clone())
+    }
+
+    fn from_arg_matches_mut(matches: &mut clap::ArgMatches) -> Result<Self, clap::Error> {
+        if matches.subcommand_name().is_some() {
+            Ok(TrialCommandArgs {
+                action: Some(<TrialAction as clap::FromArgMatches>::from_arg_matches_mut(
+                    matches,
+                )?),
+                request: None,
+            })
+        } else {
+            Ok(TrialCommandArgs {
+                action: None,
+                request: Some(
+                    <super::cell::TrialArgs as clap::FromArgMatches>::from_arg_matches_mut(
+                        matches,
+                    )?,
+                ),
+            })
+        }
+    }
+
+    fn update_from_arg_matches(&mut self, matches: &clap::ArgMatches) -> Result<(), clap::Error> {
+        *self = Self::from_arg_matches(matches)?;
+        Ok(())
+    }
+}
+
+impl clap::Args for TrialCommandArgs {
+    fn augment_args(cmd: clap::Command) -> clap::Command {
+        let cmd = <super::cell::TrialArgs as clap::Args>::augment_args(cmd);
+        <TrialAction as clap::Subcommand>::augment_subcommands(cmd)
+            .args_conflicts_with_subcommands(true)
+            .subcommand_negates_reqs(true)
+    }
+
+    fn augment_args_for_update(cmd: clap::Command) -> clap::Command {
+        Self::augment_args(cmd)
+    }
+}
+
+/// Subcommands of `cell trial`.
+#[derive(Debug, Subcommand)]
+pub enum TrialAction {
+    /// Draw a recorded trial (camera view and side view, PNG) and export its scene
+    /// as binary glTF.
+    Show(TrialShowArgs),
+}
+
+/// Options of `cell trial show`.
+#[derive(Debug, Args)]
+pub struct TrialShowArgs {
+    /// The trial's id in the log.
+    pub id: TrialId,
+    /// Write the picture here (PNG).
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Write the 3-D scene here (binary glTF).
+    #[arg(long)]
+    pub glb: Option<PathBuf>,
+    /// Trial log file.
+    #[arg(long, default_value = DEFAULT_LOG_PATH)]
+    pub log: PathBuf,
+    /// Directory of the category databases (the models' meshes).
+    #[arg(long, default_value = "db")]
+    pub db_dir: PathBuf,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `cell trial`: a request to the running cell, or `show`.
+pub fn trial_command(config: &std::path::Path, args: TrialCommandArgs) -> anyhow::Result<ExitCode> {
+    match (args.action, args.request) {
+        (Some(TrialAction::Show(show_args)), _) => show(config, show_args),
+        (None, Some(request)) => super::cell::trial(config, request),
+        (None, None) => anyhow::bail!(
+            "cell trial: give --category and --task to run a trial, or `show ID` to draw a recorded one"
+        ),
+    }
+}
+
+/// What `cell trial show` wrote.
+#[derive(Serialize)]
+struct ShowOutput {
+    trial_id: TrialId,
+    png: Option<PathBuf>,
+    glb: Option<PathBuf>,
+    solids: usize,
+    cloud_points: usize,
+    contacts: usize,
+    caption: Vec<String>,
+}
+
+/// The scene of trial `id` of `log`, with the cell configuration and databases.
+pub(crate) fn trial_scene(
+    config: &crate::config::CellConfig,
+    db_dir: &std::path::Path,
+    record: &crate::trial::TrialRecord,
+) -> anyhow::Result<crate::trial::picture::TrialScene> {
+    let robot = crate::robot::Robot::load(config)?;
+    let hand = crate::robot::hand::HandModel::load(config)?;
+    let db = match crate::cell::load_category(db_dir, &record.trial.category) {
+        Ok(db) => Some(db),
+        Err(e) => {
+            tracing::warn!("trial {}: drawn without models: {e}", record.id);
+            None
+        }
+    };
+    let inputs = crate::trial::scene::SceneInputs {
+        config,
+        robot: &robot,
+        hand: &hand,
+        db: db.as_ref(),
+        base_from_camera: config.base_from_camera(),
+    };
+    Ok(crate::trial::scene::trial_scene(record, &inputs))
+}
+
+/// Runs `cell trial show`.
+pub fn show(config_path: &std::path::Path, args: TrialShowArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(
+        args.png.is_some() || args.glb.is_some(),
+        "cell trial show {}: give --png FILE and/or --glb FILE",
+        args.id
+    );
+    let config = crate::config::CellConfig::load(config_path)?;
+    let log = TrialLog::open_existing(&args.log)?;
+    let record = log.trial(args.id)?;
+    let scene = trial_scene(&config, &args.db_dir, &record)?;
+    if let Some(png) = &args.png {
+        crate::trial::picture::write_png(&scene, png)?;
+    }
+    if let Some(glb) = &args.glb {
+        crate::trial::glb::write_glb(&scene, glb)?;
+    }
+    let out = ShowOutput {
+        trial_id: args.id,
+        png: args.png.clone(),
+        glb: args.glb.clone(),
+        solids: scene.solids.len(),
+        cloud_points: scene.cloud_m.len(),
+        contacts: scene.contacts_m.len(),
+        caption: scene.caption.clone(),
+    };
+    super::emit(args.json, &out, |o| {
+        let mut text = format!("trial {}: {}\n", o.trial_id, o.caption.join(" | "));
+        for p in o.png.iter().chain(&o.glb) {
+            text.push_str(&format!("wrote {}\n", p.display()));
+        }
+        text
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Options of `cell serve`.
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// Trial log file.
+    #[arg(long, default_value = DEFAULT_LOG_PATH)]
+    pub log: PathBuf,
+    /// Address to listen on (only this one).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub bind: std::net::SocketAddr,
+    /// Show this campaign only.
+    #[arg(long)]
+    pub campaign: Option<String>,
+    /// Read the write token from the first line of this file (at least 16
+    /// characters); without it a random token is made and printed at start.
+    #[arg(long)]
+    pub token_file: Option<PathBuf>,
+}
+
+/// Runs `cell serve` until Ctrl-C.
+pub fn serve(args: ServeArgs) -> anyhow::Result<ExitCode> {
+    // Fail early on a log that is not there or not ours.
+    drop(TrialLog::open_existing(&args.log)?);
+    let token = match &args.token_file {
+        Some(path) => crate::serve::read_token_file(path)?,
+        None => crate::serve::random_token(),
+    };
+    let server = crate::serve::Server::bind(crate::serve::ServeOptions {
+        log_path: args.log.clone(),
+        bind: args.bind,
+        token: token.clone(),
+        campaign: args.campaign.clone(),
+    })?;
+    crate::cell::install_stop_handler();
+    let addr = server.local_addr();
+    if args.token_file.is_some() {
+        println!("grading page: http://{addr}/?token=<the token in the file>");
+    } else {
+        println!("write token: {token}");
+        println!("grading page: http://{addr}/?token={token}");
+    }
+    println!("report: http://{addr}/report");
+    use std::io::Write as _;
+    let _ = std::io::stdout().flush();
+    server.run(crate::cell::stop_requested);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Writes the report as a static page: `DIR/index.html`, the charts and every
+/// trial's picture (copied from the paths named in the log) under `DIR/pictures/`.
+pub(crate) fn write_html_report(
+    log: &TrialLog,
+    trials: &[crate::trial::TrialRecord],
+    report: &Report,
+    dir: &std::path::Path,
+) -> anyhow::Result<PathBuf> {
+    let pictures_dir = dir.join("pictures");
+    std::fs::create_dir_all(&pictures_dir)
+        .with_context(|| format!("creating {}", pictures_dir.display()))?;
+    let charts = plot::write_charts(report, dir)?;
+    let campaign = report.campaign_id.as_deref();
+    let shown: Vec<&crate::trial::TrialRecord> = trials
+        .iter()
+        .filter(|t| campaign.is_none() || t.trial.campaign_id.as_deref() == campaign)
+        .collect();
+    let mut srcs = Vec::new();
+    for t in &shown {
+        let src = match log.picture_path(t.id)? {
+            Some(path) => {
+                let name = format!("{}.png", t.id);
+                match std::fs::read(&path) {
+                    Ok(bytes) => {
+                        crate::trial::write_atomically(&pictures_dir.join(&name), &bytes)?;
+                        Some(format!("pictures/{name}"))
+                    }
+                    Err(e) => {
+                        tracing::warn!("trial {}: picture {}: {e}", t.id, path.display());
+                        None
+                    }
+                }
+            }
+            None => None,
+        };
+        srcs.push(src);
+    }
+    let views: Vec<crate::serve::page::TrialView<'_>> = shown
+        .iter()
+        .zip(srcs)
+        .map(|(record, picture_src)| crate::serve::page::TrialView {
+            record,
+            picture_src,
+            history: &[],
+        })
+        .collect();
+    let name = |p: &PathBuf| {
+        p.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let html = crate::serve::page::report_page(
+        report,
+        [name(&charts[0]).as_str(), name(&charts[1]).as_str()],
+        &views,
+    );
+    let index = dir.join("index.html");
+    crate::trial::write_atomically(&index, html.as_bytes())?;
+    Ok(index)
+}
+
+/// Options of `cell bench picture`.
+#[derive(Debug, Args)]
+pub struct PictureBenchArgs {
+    /// Trial log holding the trial (e.g. a `cell campaign` log).
+    #[arg(long)]
+    pub log: PathBuf,
+    /// The trial's id.
+    #[arg(long, default_value_t = 1)]
+    pub trial: TrialId,
+    /// Directory of the category databases.
+    #[arg(long, default_value = "db")]
+    pub db_dir: PathBuf,
+    /// Timed repeats (medians are reported).
+    #[arg(long, default_value_t = 20)]
+    pub repeats: usize,
+    /// Print JSON (always JSON; accepted for uniformity).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `cell bench picture`.
+pub fn bench_picture(
+    config_path: &std::path::Path,
+    args: PictureBenchArgs,
+) -> anyhow::Result<ExitCode> {
+    use std::time::Instant;
+    anyhow::ensure!(args.repeats > 0, "--repeats must be at least 1");
+    let config = crate::config::CellConfig::load(config_path)?;
+    let log = TrialLog::open_existing(&args.log)?;
+    let record = log.trial(args.trial)?;
+    let robot = crate::robot::Robot::load(&config)?;
+    let hand = crate::robot::hand::HandModel::load(&config)?;
+    let db = crate::cell::load_category(&args.db_dir, &record.trial.category).ok();
+    let inputs = crate::trial::scene::SceneInputs {
+        config: &config,
+        robot: &robot,
+        hand: &hand,
+        db: db.as_ref(),
+        base_from_camera: config.base_from_camera(),
+    };
+    let mut scene_ms = Vec::new();
+    let mut scene = None;
+    for _ in 0..args.repeats.min(5) {
+        let t = Instant::now();
+        scene = Some(crate::trial::scene::trial_scene(&record, &inputs));
+        scene_ms.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let scene = scene.expect("at least one repeat");
+    let (mut render_ms, mut encode_ms) = (Vec::new(), Vec::new());
+    let mut size = (0, 0);
+    for _ in 0..args.repeats {
+        let t = Instant::now();
+        let canvas = crate::trial::picture::render(&scene);
+        render_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        let t = Instant::now();
+        let png = canvas.to_png(std::path::Path::new("bench.png"))?;
+        encode_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        std::hint::black_box(png);
+        size = (canvas.width, canvas.height);
+    }
+    let triangles: usize = scene.solids.iter().map(|s| s.triangles.len()).sum();
+    let render = super::bench::median(&mut render_ms);
+    let encode = super::bench::median(&mut encode_ms);
+    let out = serde_json::json!({
+        "benchmark": "picture",
+        "trial_id": args.trial,
+        "repeats": args.repeats,
+        "image_px": [size.0, size.1],
+        "triangles": triangles,
+        "cloud_points": scene.cloud_m.len(),
+        "contacts": scene.contacts_m.len(),
+        "render_median_ms": render,
+        "png_encode_median_ms": encode,
+        "render_and_encode_median_ms": render + encode,
+        "scene_assembly_median_ms": super::bench::median(&mut scene_ms),
+        "goal_ms": 100.0,
+        "load_average": super::bench::load_average(),
+    });
+    super::write_stdout(&format!("{}\n", serde_json::to_string_pretty(&out)?))?;
     Ok(ExitCode::SUCCESS)
 }

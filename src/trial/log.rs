@@ -51,10 +51,11 @@ pub(crate) struct Migration {
 }
 
 /// The schema's history; the last entry is the current version.
-pub(crate) const MIGRATIONS: &[Migration] = &[Migration {
-    version: 1,
-    description: "trials and grade_history",
-    sql: r#"
+pub(crate) const MIGRATIONS: &[Migration] = &[
+    Migration {
+        version: 1,
+        description: "trials and grade_history",
+        sql: r#"
 CREATE TABLE trials (
     id               INTEGER PRIMARY KEY AUTOINCREMENT,
     started_at       TEXT    NOT NULL,
@@ -95,7 +96,13 @@ CREATE TABLE grade_history (
 );
 CREATE INDEX grade_history_trial ON grade_history (trial_id);
 "#,
-}];
+    },
+    Migration {
+        version: 2,
+        description: "trial picture path",
+        sql: "ALTER TABLE trials ADD COLUMN picture_path TEXT;",
+    },
+];
 
 /// The newest schema version this build writes.
 pub const SCHEMA_VERSION: i64 = MIGRATIONS[MIGRATIONS.len() - 1].version;
@@ -625,6 +632,36 @@ impl TrialLog {
         })
     }
 
+    /// Names the trial's picture (PNG) in its row.
+    pub fn set_picture(&mut self, id: TrialId, path: &Path) -> Result<(), TrialError> {
+        self.update_one(
+            id,
+            "record picture",
+            "UPDATE trials SET picture_path = ?2 WHERE id = ?1",
+            params![id, path.to_string_lossy().into_owned()],
+        )
+    }
+
+    /// The picture named in trial `id`'s row, if any.
+    pub fn picture_path(&self, id: TrialId) -> Result<Option<PathBuf>, TrialError> {
+        let path: Option<Option<String>> = self
+            .conn
+            .query_row(
+                "SELECT picture_path FROM trials WHERE id = ?1",
+                [id],
+                |row| row.get(0),
+            )
+            .optional()
+            .map_err(self.sql_err("read picture path"))?;
+        match path {
+            Some(p) => Ok(p.map(PathBuf::from)),
+            None => Err(TrialError::UnknownTrial {
+                path: self.path.clone(),
+                id,
+            }),
+        }
+    }
+
     /// The trial with id `id`.
     pub fn trial(&self, id: TrialId) -> Result<TrialRecord, TrialError> {
         let sql = format!("SELECT {TRIAL_COLUMNS} FROM trials WHERE id = ?1");
@@ -1075,6 +1112,29 @@ mod tests {
             other => panic!("{other:?}"),
         }
         assert_eq!(std::fs::read(&path).unwrap(), before);
+    }
+
+    #[test]
+    fn a_version_1_log_gains_the_picture_column_and_keeps_its_trials() {
+        let dir = TempDir::new("picture-migration");
+        let path = dir.0.join("v1.sqlite");
+        let create = OpenFlags::SQLITE_OPEN_CREATE;
+        let mut log = TrialLog::open_with(&path, create, &MIGRATIONS[..1]).unwrap();
+        let id = log.record_trial(&sample_trial()).unwrap();
+        drop(log);
+        let mut log = TrialLog::open_existing(&path).unwrap();
+        assert_eq!(log.schema_version().unwrap(), 2);
+        assert_eq!(log.trial(id).unwrap().trial, sample_trial());
+        assert_eq!(log.picture_path(id).unwrap(), None);
+        log.set_picture(id, Path::new("pictures/1.png")).unwrap();
+        assert_eq!(
+            log.picture_path(id).unwrap(),
+            Some(PathBuf::from("pictures/1.png"))
+        );
+        assert!(matches!(
+            log.set_picture(id + 1, Path::new("x.png")),
+            Err(TrialError::UnknownTrial { .. })
+        ));
     }
 
     #[test]

@@ -15,13 +15,18 @@
 //! - [`plot`]: the report's bar charts as PNG.
 //! - [`csv`]: grades kept on paper in and out as CSV.
 //! - [`time`]: UTC timestamps in ISO-8601.
+//! - [`picture`], [`scene`], [`glb`]: the picture of a trial (camera and side
+//!   views) and its 3-D scene as binary glTF.
 
 pub mod csv;
+pub mod glb;
 pub mod grade;
 pub mod log;
 pub mod paper;
+pub mod picture;
 pub mod plot;
 pub mod report;
+pub mod scene;
 pub mod stats;
 pub mod time;
 
@@ -171,6 +176,14 @@ pub enum TrialError {
     /// The observer's terminal could not be read or written.
     #[error("grading prompt: {0}")]
     PromptIo(std::io::Error),
+    /// A glTF document could not be written.
+    #[error("{path}: glTF: {detail}")]
+    Glb {
+        /// The GLB file.
+        path: PathBuf,
+        /// What failed.
+        detail: String,
+    },
     /// A PNG could not be encoded.
     #[error("{path}: PNG encoding: {detail}")]
     Png {
