@@ -182,7 +182,10 @@ fn sim_view_of_a_mug_registers_to_its_own_model_within_5_mm_and_5_deg() {
         dp * 1e3,
         dr.to_degrees()
     );
-    assert!(own.eps_m2 < 4e-6 && own.inlier_fraction > 0.9, "{own:?}");
+    // eps is two-sided (issue 19): the target's side alone was under 4e-6; the
+    // side of the model points the camera should see adds to it (measured 1.09e-5
+    // in all).
+    assert!(own.eps_m2 < 2e-5 && own.inlier_fraction > 0.9, "{own:?}");
     assert_eq!(fits_input(&p.registrations).fits.len(), models.len());
 }
 
@@ -383,7 +386,10 @@ fn a_model_at_a_wildly_different_scale_fails_alone() {
         ),
         other => panic!("{other:?}"),
     }
-    assert!(ModelFit::from_registration(&r[1]).is_none() && ModelFit::from_registration(&r[0]).is_some());
+    assert!(
+        ModelFit::from_registration(&r[1]).is_none()
+            && ModelFit::from_registration(&r[0]).is_some()
+    );
     // Leave-one-out keeps the other model's result unchanged (per-model seeds).
     let alone = register_all(&target, &set.without("mug_002_mm"), &params, 4).unwrap();
     assert_eq!(alone.len(), 1);

@@ -2,8 +2,8 @@
 //! a known or unknown position on the flange.
 
 use super::motions::check_motions;
-use crate::geometry::project_to_so3;
 use super::{refine, CalibError, HandEye, PointSample, Sample, Weights};
+use crate::geometry::project_to_so3;
 use crate::geometry::Pose;
 use nalgebra::{
     DMatrix, DVector, Isometry3, Matrix3, Point3, SymmetricEigen, Translation3, UnitQuaternion,

@@ -1,7 +1,7 @@
 //! Residuals of `F_i Y = X C_i` per sample, and the best target pose for a camera pose.
 
-use crate::geometry::mean_rotation;
 use super::{HandEye, Sample, Weights};
+use crate::geometry::mean_rotation;
 use crate::geometry::Pose;
 use nalgebra::{DVector, Isometry3, Point3, Translation3, Vector3};
 use serde::{Deserialize, Serialize};

@@ -1,8 +1,8 @@
 //! Tsai–Lenz and Park–Martin: rotation of `X` first, then its translation.
 
 use super::motions::{motion_pairs, solve_3x3, solve_translation, MotionPair};
-use crate::geometry::project_to_so3;
 use super::{CalibError, PoseSample};
+use crate::geometry::project_to_so3;
 use crate::geometry::Pose;
 use nalgebra::{Isometry3, Matrix3, Quaternion, Translation3, UnitQuaternion, Vector3};
 

@@ -82,7 +82,10 @@ mod tests {
     #[test]
     fn a_handle_is_found_only_on_a_mug_that_has_one() {
         let with = HandleRegion::of(&mug(true)).unwrap();
-        assert!(with.body_radius_m > 0.03 && with.body_radius_m < 0.06, "{with:?}");
+        assert!(
+            with.body_radius_m > 0.03 && with.body_radius_m < 0.06,
+            "{with:?}"
+        );
         assert!(HandleRegion::of(&mug(false)).is_none());
     }
 

@@ -9,7 +9,10 @@ use super::target::PreparedTarget;
 /// Correspondences `(target feature index, model feature index)` of a spread
 /// subsample of the target's descriptors, kept when mutual (all when fewer than
 /// 30 are).
-pub(super) fn correspondences(target: &PreparedTarget, model: &PreparedModel) -> Vec<(usize, usize)> {
+pub(super) fn correspondences(
+    target: &PreparedTarget,
+    model: &PreparedModel,
+) -> Vec<(usize, usize)> {
     let picked: Vec<Fpfh> = target
         .match_picks
         .iter()
@@ -32,7 +35,6 @@ pub(super) fn correspondences(target: &PreparedTarget, model: &PreparedModel) ->
             .collect()
     }
 }
-
 
 #[cfg(test)]
 mod tests {

@@ -49,7 +49,10 @@ pub struct ModelSet {
 /// Largest nearest-point field (cells); a bigger model is far off scale.
 const MAX_FIELD_CELLS: usize = 8_000_000;
 
-pub(super) fn prepare_model(cloud: &PointCloud, params: &RegisterParams) -> Result<PreparedModel, String> {
+pub(super) fn prepare_model(
+    cloud: &PointCloud,
+    params: &RegisterParams,
+) -> Result<PreparedModel, String> {
     let valid = voxel_downsample(cloud, 0.0);
     if valid.len() < params.min_feature_points {
         return Err(format!(

@@ -64,6 +64,9 @@ mod tests {
         assert_eq!(subsample_indices(7, 3), [0, 2, 4]);
         let points: Vec<Point3<f32>> = (0..9).map(|i| Point3::new(i as f32, 0.0, 0.0)).collect();
         let picked = subsample(&points, 3);
-        assert_eq!(picked.iter().map(|p| p.x).collect::<Vec<_>>(), [0.0, 3.0, 6.0]);
+        assert_eq!(
+            picked.iter().map(|p| p.x).collect::<Vec<_>>(),
+            [0.0, 3.0, 6.0]
+        );
     }
 }

@@ -19,7 +19,6 @@ pub(super) fn distinct(a: &Pose, b: &Pose) -> bool {
     dp > 0.005 || dr > 5f64.to_radians()
 }
 
-
 /// RANSAC over descriptor correspondences `pairs`: the best distinct
 /// `target_from_model` hypotheses, best first.
 pub(super) fn ransac(
@@ -90,7 +89,6 @@ pub(super) fn ransac(
     }
     best.into_iter().map(|(_, p)| p).collect()
 }
-
 
 #[cfg(test)]
 mod tests {

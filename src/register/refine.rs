@@ -61,7 +61,14 @@ fn refine_one(
         },
     );
     r.iterations += wide.iterations;
-    let cost = candidate_cost(target, model, params, &r.model_from_target, &target.icp, true);
+    let cost = candidate_cost(
+        target,
+        model,
+        params,
+        &r.model_from_target,
+        &target.icp,
+        true,
+    );
     tracing::trace!(
         cost,
         target_from_model = ?crate::geometry::params_from_pose(&r.model_from_target.inverse()),

@@ -44,7 +44,6 @@ pub(super) fn best_distinct(mut candidates: Vec<Candidate>, n: usize) -> Vec<Can
     chosen
 }
 
-
 /// The seeds (`target_from_model`) of the candidate search: each RANSAC
 /// hypothesis, upright and flipped (a half turn about a horizontal axis through the
 /// placed model's centroid), and the model standing upright behind the target's
@@ -213,8 +212,7 @@ pub(super) fn coarse_search(
     };
     let picks = subsample_indices(target.score.len(), params.sweep_points);
     let sweep: Vec<Point3<f32>> = picks.iter().map(|&i| target.score[i]).collect();
-    let sweep_normals: Vec<Vector3<f32>> =
-        picks.iter().map(|&i| target.score_normals[i]).collect();
+    let sweep_normals: Vec<Vector3<f32>> = picks.iter().map(|&i| target.score_normals[i]).collect();
     let (placements, settle_iterations) = coarse.settle(
         seeds(hypotheses, target, model, params),
         &sweep,
@@ -302,7 +300,10 @@ mod tests {
             let turn = placed.rotation * placement.rotation.inverse();
             let angle = turn.scaled_axis().dot(&up);
             let want = crate::geometry::wrap_angle(std::f64::consts::TAU * k as f64 / 8.0);
-            assert!((crate::geometry::wrap_angle(angle - want)).abs() < 1e-9, "{k}: {angle}");
+            assert!(
+                (crate::geometry::wrap_angle(angle - want)).abs() < 1e-9,
+                "{k}: {angle}"
+            );
         }
         // Tilted or moved is not the same up to yaw.
         let tilted = Pose::rotation(Vector3::x() * 0.2) * placement;

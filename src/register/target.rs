@@ -15,8 +15,9 @@ use std::time::Instant;
 
 /// The target, prepared once for all models.
 pub(super) struct PreparedTarget {
-    /// All valid points.
+    /// All valid points, and their index.
     pub(super) all: Vec<Point3<f32>>,
+    pub(super) all_index: KdIndex,
     /// ICP cloud and its normals (towards the sensor).
     pub(super) icp: Vec<Point3<f32>>,
     pub(super) icp_normals: Vec<Vector3<f32>>,
@@ -142,6 +143,7 @@ pub(super) fn prepare_target(
         range_image: RangeImage::new(&valid.points, viewpoint, params.range_bin_m as f32),
         score: picks.iter().map(|&i| icp_points[i]).collect(),
         icp: icp_points,
+        all_index: KdIndex::new(&valid.points),
         all: valid.points,
         feature_points: feature_cloud.points,
         features,
@@ -160,7 +162,11 @@ pub(super) mod tests {
         for i in 0..40 {
             for k in 0..50 {
                 let a = -std::f32::consts::FRAC_PI_2 + std::f32::consts::PI * i as f32 / 39.0;
-                points.push(Point3::new(0.04 * a.cos(), 0.04 * a.sin(), 0.002 * k as f32));
+                points.push(Point3::new(
+                    0.04 * a.cos(),
+                    0.04 * a.sin(),
+                    0.002 * k as f32,
+                ));
             }
         }
         PointCloud::from_points(points)
@@ -183,7 +189,11 @@ pub(super) mod tests {
         let few = PointCloud::from_points(vec![Point3::origin(); 5]);
         assert!(matches!(
             prepare(&few),
-            Some(RegisterError::TooFewPoints { got: 5, need: 30, .. })
+            Some(RegisterError::TooFewPoints {
+                got: 5,
+                need: 30,
+                ..
+            })
         ));
         // Enough points, but all in one 5 mm voxel: too few for FPFH.
         let clump = PointCloud::from_points(
