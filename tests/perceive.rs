@@ -182,7 +182,10 @@ fn sim_view_of_a_mug_registers_to_its_own_model_within_5_mm_and_5_deg() {
         dp * 1e3,
         dr.to_degrees()
     );
-    assert!(own.eps_m2 < 4e-6 && own.inlier_fraction > 0.9, "{own:?}");
+    // eps is two-sided (issue 19): the target's side alone was under 4e-6; the
+    // side of the model points the camera should see adds to it (measured 1.09e-5
+    // in all).
+    assert!(own.eps_m2 < 2e-5 && own.inlier_fraction > 0.9, "{own:?}");
     assert_eq!(fits_input(&p.registrations).fits.len(), models.len());
 }
 

@@ -627,7 +627,8 @@ pub fn loo(config: &Path, args: LooArgs) -> anyhow::Result<ExitCode> {
     tracing::info!(seed = e.seed, category = %args.category, "leave-one-out");
     let started = Instant::now();
     let registrar = CategoryRegistrar::new(&db, cell.viewpoint(setup.view, e.normals_from))
-        .with_context(|| format!("{}: preparing the models", db.dir.display()))?;
+        .with_context(|| format!("{}: preparing the models", db.dir.display()))?
+        .for_view(setup.view);
     let bar = progress_bar(&format!("loo {}", args.category));
     let report = leave_one_out(&setup, &db, &e.tasks, &kernels, &registrar, Some(&bar));
     bar.finish_and_clear();
@@ -714,7 +715,8 @@ pub fn cross(config: &Path, args: CrossArgs) -> anyhow::Result<ExitCode> {
     tracing::info!(seed = e.seed, train = %args.train, test = %args.test, "cross-category");
     let started = Instant::now();
     let registrar = CategoryRegistrar::new(&train, cell.viewpoint(setup.view, e.normals_from))
-        .with_context(|| format!("{}: preparing the models", train.dir.display()))?;
+        .with_context(|| format!("{}: preparing the models", train.dir.display()))?
+        .for_view(setup.view);
     let bar = progress_bar(&format!("cross {} -> {}", args.train, args.test));
     let report = cross_category(
         &setup,

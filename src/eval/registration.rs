@@ -31,6 +31,20 @@ impl CategoryRegistrar {
         let set = ModelSet::from_category(db, &params)?;
         Ok(CategoryRegistrar { set, params })
     }
+
+    /// Scores fits for `view`: a complete view's two-sided score compares every
+    /// model point with the target ([`RegisterParams::complete_view`]).
+    pub fn for_view(mut self, view: super::ViewKind) -> CategoryRegistrar {
+        self.params.complete_view = view == super::ViewKind::Complete;
+        self
+    }
+
+    /// Keeps registrations under the inlier threshold as fits with their `eps`
+    /// ([`RegisterParams::keep_poor_fits`]), as the paper's mode wants.
+    pub fn keep_poor_fits(mut self, keep: bool) -> CategoryRegistrar {
+        self.params.keep_poor_fits = keep;
+        self
+    }
 }
 
 impl Registrar for CategoryRegistrar {

@@ -15,13 +15,26 @@ pub(super) const EYE: [f64; 3] = [0.6, 0.0, 0.4];
 
 /// Points sampled over a procedural mug with a handle (along +x), model frame.
 pub(super) fn mug_cloud(scale: f64) -> PointCloud {
-    let seed = (0..)
+    mug_cloud_scaled(scale, scale)
+}
+
+/// [`mug_cloud`] scaled by `across` in x and y and by `height` in z (normals kept:
+/// close enough for a fixture).
+pub(super) fn mug_cloud_scaled(across: f64, height: f64) -> PointCloud {
+    mug_sample(across, height, 6000, 1)
+}
+
+/// `points` points sampled over the mug with `seed`, scaled as [`mug_cloud_scaled`].
+pub(super) fn mug_sample(across: f64, height: f64, points: usize, seed: u64) -> PointCloud {
+    let mesh_seed = (0..)
         .find(|&s| matches!(generate(Category::Mug, s).1, Params::Mug(ref m) if m.handle.is_some()))
         .unwrap();
-    let (mesh, _) = generate(Category::Mug, seed);
-    let mut cloud = crate::cloud::sample::sample_surface(&mesh, 6000, 1).unwrap();
+    let (mesh, _) = generate(Category::Mug, mesh_seed);
+    let mut cloud = crate::cloud::sample::sample_surface(&mesh, points, seed).unwrap();
     for p in &mut cloud.points {
-        p.coords *= scale as f32;
+        p.x *= across as f32;
+        p.y *= across as f32;
+        p.z *= height as f32;
     }
     cloud
 }

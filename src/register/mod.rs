@@ -48,7 +48,7 @@ pub mod visibility;
 mod fixture;
 
 pub use model::ModelSet;
-pub use params::RegisterParams;
+pub use params::{FitScore, RegisterParams};
 pub use result::{ModelRegistration, ModelStageTimes, RegisterTimings, RegistrationStatus};
 
 use crate::cloud::segment::{segment_object, SegmentError, SegmentParams};
@@ -178,7 +178,7 @@ fn register_one(
     let t3 = Instant::now();
     let scores = score::final_scores(target, model, params, &best.model_from_target);
     stages.scoring_ms = ms(t3);
-    let status = if scores.inlier_fraction < params.min_inlier_fraction {
+    let status = if scores.inlier_fraction < params.min_inlier_fraction && !params.keep_poor_fits {
         RegistrationStatus::Failed(format!(
             "poor fit: {:.0}% of target points within {} mm of the model (need {:.0}%)",
             scores.inlier_fraction * 100.0,
@@ -289,4 +289,41 @@ pub fn perceive(
         register,
         total_ms: ms(started),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keep_poor_fits_keeps_a_poor_registration_with_its_eps() {
+        let truth = Pose::identity();
+        let view = fixture::seen(&fixture::mug_cloud(1.0), &truth);
+        let strict = RegisterParams {
+            // Nothing is this close: every registration is a poor fit.
+            inlier_distance_m: 1e-6,
+            ..fixture::params()
+        };
+        let set =
+            ModelSet::from_clouds(vec![("mug".into(), fixture::mug_cloud(1.0))], &strict).unwrap();
+        let failed = register_all(&view, &set, &strict, 1).unwrap().remove(0);
+        assert!(
+            matches!(&failed.status, RegistrationStatus::Failed(why) if why.starts_with("poor fit")),
+            "{failed:?}"
+        );
+        let kept = register_all(
+            &view,
+            &set,
+            &RegisterParams {
+                keep_poor_fits: true,
+                ..strict
+            },
+            1,
+        )
+        .unwrap()
+        .remove(0);
+        assert_eq!(kept.status, RegistrationStatus::Ok);
+        assert!(kept.eps_m2.is_finite() && kept.eps_m2 == failed.eps_m2);
+        assert_eq!(kept.target_from_model, failed.target_from_model);
+    }
 }

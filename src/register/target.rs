@@ -15,8 +15,9 @@ use std::time::Instant;
 
 /// The target, prepared once for all models.
 pub(super) struct PreparedTarget {
-    /// All valid points.
+    /// All valid points, and their index.
     pub(super) all: Vec<Point3<f32>>,
+    pub(super) all_index: KdIndex,
     /// ICP cloud and its normals (towards the sensor).
     pub(super) icp: Vec<Point3<f32>>,
     pub(super) icp_normals: Vec<Vector3<f32>>,
@@ -142,6 +143,7 @@ pub(super) fn prepare_target(
         range_image: RangeImage::new(&valid.points, viewpoint, params.range_bin_m as f32),
         score: picks.iter().map(|&i| icp_points[i]).collect(),
         icp: icp_points,
+        all_index: KdIndex::new(&valid.points),
         all: valid.points,
         feature_points: feature_cloud.points,
         features,

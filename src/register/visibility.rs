@@ -95,51 +95,13 @@ impl RangeImage {
                 *slot = slot.min(range);
             }
         }
-        // Distance (bins) to the nearest filled bin: a two-pass chamfer transform
-        // (1 along rows and columns, sqrt 2 diagonally).
-        let [w, h] = image.dims;
+        // Distance (bins) to the nearest filled bin.
         let mut d: Vec<f32> = image
             .nearest_m
             .iter()
             .map(|r| if r.is_finite() { 0.0 } else { f32::INFINITY })
             .collect();
-        let diag = std::f32::consts::SQRT_2;
-        for v in 0..h {
-            for u in 0..w {
-                let mut best = d[u + w * v];
-                if u > 0 {
-                    best = best.min(d[u - 1 + w * v] + 1.0);
-                }
-                if v > 0 {
-                    best = best.min(d[u + w * (v - 1)] + 1.0);
-                    if u > 0 {
-                        best = best.min(d[u - 1 + w * (v - 1)] + diag);
-                    }
-                    if u + 1 < w {
-                        best = best.min(d[u + 1 + w * (v - 1)] + diag);
-                    }
-                }
-                d[u + w * v] = best;
-            }
-        }
-        for v in (0..h).rev() {
-            for u in (0..w).rev() {
-                let mut best = d[u + w * v];
-                if u + 1 < w {
-                    best = best.min(d[u + 1 + w * v] + 1.0);
-                }
-                if v + 1 < h {
-                    best = best.min(d[u + w * (v + 1)] + 1.0);
-                    if u + 1 < w {
-                        best = best.min(d[u + 1 + w * (v + 1)] + diag);
-                    }
-                    if u > 0 {
-                        best = best.min(d[u - 1 + w * (v + 1)] + diag);
-                    }
-                }
-                d[u + w * v] = best;
-            }
-        }
+        chamfer(&mut d, image.dims);
         image.outside = d
             .into_iter()
             .map(|bins| ((bins - 1.5) / (FULL_BINS - 1.5)).clamp(0.0, 1.0))
@@ -195,6 +157,14 @@ impl RangeImage {
         through as f64 / covered.max(1) as f64
     }
 
+    /// Whether `p` is within `margin_m` of the nearest surface along its ray (not
+    /// hidden behind it); false for a point outside the image or behind the eye.
+    pub fn is_front(&self, p: &Point3<f32>, margin_m: f32) -> bool {
+        self.project(p)
+            .and_then(|(uv, range)| Some((self.cell(uv)?, range)))
+            .is_some_and(|(cell, range)| range <= self.nearest_m[cell] + margin_m)
+    }
+
     /// Of `points` (target frame; the caller leaves out what the sensor could not
     /// have seen anyway, such as points below the table's cut), the fraction that
     /// the sensor's measurements contradict: more than `margin_m` in front of the
@@ -227,6 +197,50 @@ impl RangeImage {
             };
         }
         contradicted / total.max(1) as f64
+    }
+}
+
+/// The two-pass chamfer distance transform of `d` (row-major, `dims` = [width,
+/// height]): each entry becomes the distance (bins; 1 along rows and columns,
+/// sqrt 2 diagonally) to the nearest zero entry.
+fn chamfer(d: &mut [f32], dims: [usize; 2]) {
+    let [w, h] = dims;
+    let diag = std::f32::consts::SQRT_2;
+    for v in 0..h {
+        for u in 0..w {
+            let mut best = d[u + w * v];
+            if u > 0 {
+                best = best.min(d[u - 1 + w * v] + 1.0);
+            }
+            if v > 0 {
+                best = best.min(d[u + w * (v - 1)] + 1.0);
+                if u > 0 {
+                    best = best.min(d[u - 1 + w * (v - 1)] + diag);
+                }
+                if u + 1 < w {
+                    best = best.min(d[u + 1 + w * (v - 1)] + diag);
+                }
+            }
+            d[u + w * v] = best;
+        }
+    }
+    for v in (0..h).rev() {
+        for u in (0..w).rev() {
+            let mut best = d[u + w * v];
+            if u + 1 < w {
+                best = best.min(d[u + 1 + w * v] + 1.0);
+            }
+            if v + 1 < h {
+                best = best.min(d[u + w * (v + 1)] + 1.0);
+                if u + 1 < w {
+                    best = best.min(d[u + 1 + w * (v + 1)] + diag);
+                }
+                if u > 0 {
+                    best = best.min(d[u - 1 + w * (v + 1)] + diag);
+                }
+            }
+            d[u + w * v] = best;
+        }
     }
 }
 
@@ -263,6 +277,10 @@ mod tests {
         assert_eq!(at(1.0), 0.0);
         // Behind the wall: occluded, not a contradiction.
         assert_eq!(at(1.2), 0.0);
+        assert!(image.is_front(&Point3::new(0.0, 0.0, 1.0), 0.005));
+        assert!(image.is_front(&Point3::new(0.0, 0.0, 0.9), 0.005));
+        assert!(!image.is_front(&Point3::new(0.0, 0.0, 1.2), 0.005));
+        assert!(!image.is_front(&Point3::new(0.0, 0.0, -1.0), 0.005));
         // Off to the side, where the sensor saw nothing: no evidence either way.
         let off = image.seen_through_fraction(std::iter::once(Point3::new(0.5, 0.0, 0.9)), 0.01);
         assert_eq!(off, 0.0);
@@ -306,5 +324,17 @@ mod tests {
             0.005,
         );
         assert_eq!(mixed, 0.5);
+    }
+
+    #[test]
+    fn chamfer_distances_grow_from_the_filled_bins() {
+        let inf = f32::INFINITY;
+        let mut d = vec![inf, inf, inf, inf, 0.0, inf, inf, inf, inf, inf, inf, inf];
+        chamfer(&mut d, [3, 4]);
+        let s = std::f32::consts::SQRT_2;
+        assert_eq!(
+            d,
+            [s, 1.0, s, 1.0, 0.0, 1.0, s, 1.0, s, 1.0 + s, 2.0, 1.0 + s]
+        );
     }
 }
