@@ -45,6 +45,8 @@ pub struct HarnessOptions {
     pub simulated_devices: bool,
     /// Joints A1..A6 (rad) the simulated arm starts at.
     pub home_joints_rad: [f64; 7],
+    /// Who grades the trials (the log stage's `--observer`).
+    pub observer: super::log::ObserverKind,
 }
 
 impl HarnessOptions {
@@ -65,6 +67,7 @@ impl HarnessOptions {
             trial_timeout_s: 120.0,
             simulated_devices: true,
             home_joints_rad: HOME_JOINTS_RAD,
+            observer: super::log::ObserverKind::default(),
         })
     }
 }
@@ -333,6 +336,8 @@ impl Cell {
                 self.options.log_path.display().to_string(),
                 "--trial-timeout-s".into(),
                 self.options.trial_timeout_s.to_string(),
+                "--observer".into(),
+                self.options.observer.arg().into(),
             ]),
             _ => {}
         }

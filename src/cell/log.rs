@@ -24,7 +24,7 @@ use crate::ipc::{
     TrialRequest, TrialResult, Wakeable,
 };
 use crate::robot::Robot;
-use crate::sim::observer::{Attempt, Observation, Observer};
+use crate::sim::observer::{Attempt, Observation, Observer, ObserverMode};
 use crate::trial::{
     FailureCause, Grade, GradeSource, Grading, NewTrial, ObjectRef, Placement, TrialLog,
     UtcTimestamp,
@@ -35,12 +35,38 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// Who grades the trials.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum ObserverKind {
-    /// The simulated observer (grasp simulator on the true object).
-    Sim,
+    /// The simulated observer grading by the physics lift test (`sim` is an alias);
+    /// the static verdict is recorded beside it.
+    #[default]
+    #[value(alias = "sim")]
+    Physics,
+    /// The simulated observer grading by static epsilon (the earlier grading); the
+    /// physics verdict is recorded beside it.
+    Static,
     /// A person at the terminal (s / p / f, cause, note).
     Terminal,
+}
+
+impl ObserverKind {
+    /// The simulated observer's mode, `None` for a person.
+    pub fn mode(self) -> Option<ObserverMode> {
+        match self {
+            ObserverKind::Physics => Some(ObserverMode::Physics),
+            ObserverKind::Static => Some(ObserverMode::Static),
+            ObserverKind::Terminal => None,
+        }
+    }
+
+    /// The command-line value (`physics`, `static`, `terminal`).
+    pub fn arg(self) -> &'static str {
+        match self {
+            ObserverKind::Physics => "physics",
+            ObserverKind::Static => "static",
+            ObserverKind::Terminal => "terminal",
+        }
+    }
 }
 
 /// Options of the log stage besides the configuration.
@@ -263,7 +289,7 @@ impl Logger {
                     crate::trial::prompt_grade(std::io::stdin().lock(), std::io::stderr().lock())?;
                 Ok((grading, GradeSource::Observer, None))
             }
-            ObserverKind::Sim => {
+            ObserverKind::Physics | ObserverKind::Static => {
                 let (Some(observer), Some(setup)) = (&self.observer, setup) else {
                     return died(
                         "no trial setup: the simulated observer cannot grade it".to_string(),
@@ -349,6 +375,13 @@ impl Logger {
                 "epsilon": seen.as_ref().map(|s| s.epsilon),
                 "contacts": seen.as_ref().map(|s| s.contacts),
                 "registration_error_m": seen.as_ref().and_then(|s| s.registration_error_m),
+                "observer": seen.as_ref().map(|s| s.mode),
+                "verdicts": seen.as_ref().map(|s| json!({
+                    "physics": s.physics,
+                    "static": s.static_epsilon,
+                })),
+                "lift": seen.as_ref().and_then(|s| s.lift.as_ref()),
+                "registration": seen.as_ref().and_then(|s| s.registration),
                 "timings_s": timings,
             })),
             seeds,
@@ -422,11 +455,13 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
         })?;
     }
     let log = TrialLog::open(&options.log_path)?;
-    let observer = match options.observer {
-        ObserverKind::Sim => {
-            Some(Observer::new(config).map_err(|e| CellError::Invalid(e.to_string()))?)
-        }
-        ObserverKind::Terminal => None,
+    let observer = match options.observer.mode() {
+        Some(mode) => Some(
+            Observer::new(config)
+                .map_err(|e| CellError::Invalid(e.to_string()))?
+                .with_mode(mode),
+        ),
+        None => None,
     };
     let mut logger = Logger {
         robot: Robot::load(config)?,

@@ -80,6 +80,9 @@ pub struct DemoArgs {
     /// How long the executor holds each lifted object (s).
     #[arg(long, default_value_t = 0.3)]
     pub hold_s: f64,
+    /// Who grades: the physics lift test or static epsilon (both verdicts are logged).
+    #[arg(long, value_enum, default_value_t = crate::cell::log::ObserverKind::Physics)]
+    pub observer: crate::cell::log::ObserverKind,
     /// Print one JSON document instead of lines.
     #[arg(long)]
     pub json: bool,
@@ -118,6 +121,9 @@ pub struct CampaignArgs {
     /// How long the executor holds each lifted object (s).
     #[arg(long, default_value_t = 0.3)]
     pub hold_s: f64,
+    /// Who grades: the physics lift test or static epsilon (both verdicts are logged).
+    #[arg(long, value_enum, default_value_t = crate::cell::log::ObserverKind::Physics)]
+    pub observer: crate::cell::log::ObserverKind,
     /// Print one JSON document instead of lines.
     #[arg(long)]
     pub json: bool,
@@ -381,6 +387,7 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
     let mut options = HarnessOptions::demo(stage)?;
     options.db_dir = args.kind.db_dir.clone();
     options.hold_s = args.hold_s;
+    options.observer = args.observer;
     crate::cell::install_stop_handler();
     eprintln!("starting the cell (5 stages, simulated arm and hand) ...");
     let mut cell = Cell::start(options, (*domain).clone()).context("starting the cell")?;
@@ -513,6 +520,7 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     let mut options = HarnessOptions::demo(stage)?;
     options.db_dir = args.kind.db_dir.clone();
     options.hold_s = args.hold_s;
+    options.observer = args.observer;
     options.log_path = args.log.clone();
     crate::cell::install_stop_handler();
     let lines = {

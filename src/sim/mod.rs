@@ -5,5 +5,6 @@
 pub mod camera;
 pub mod fri;
 pub mod observer;
+pub mod physics;
 pub mod puck;
 pub mod scene;
