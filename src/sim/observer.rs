@@ -617,8 +617,14 @@ mod tests {
         let seen = observer
             .grade("model", &db.meshes[model], &base_from_object, &executed)
             .unwrap();
-        assert_eq!(seen.grade, Grade::Success, "{seen:?}");
-        assert!(seen.epsilon >= SUCCESS_EPSILON && seen.cause.is_none());
+        assert_eq!(seen.mode, ObserverMode::Physics);
+        assert_eq!(seen.static_epsilon.grade, Grade::Success, "{seen:?}");
+        assert_eq!(seen.static_epsilon.rule, GradeRule::ForceClosure);
+        assert!(seen.epsilon >= SUCCESS_EPSILON && seen.static_epsilon.cause.is_none());
+        let lift = seen.lift.as_ref().expect("executed grasps get the lift test");
+        assert_eq!(seen.physics.rule, GradeRule::Lift(lift.rule));
+        assert_eq!(seen.grade, seen.physics.grade);
+        assert!(seen.note.contains("physics") && seen.note.contains("static"));
 
         // The same grasp 30 cm beside the object: no contact; the fit was 30 cm off.
         let beside = pose_from_params(&[0.0, 0.3, 0.0, 0.0, 0.0, 0.0]);
@@ -632,7 +638,17 @@ mod tests {
             .unwrap();
         assert_eq!(seen.grade, Grade::Failure);
         assert_eq!(seen.cause, Some(FailureCause::Registration));
+        assert_eq!(seen.physics.rule, GradeRule::Lift(LiftRule::NotLifted));
+        assert_eq!(seen.static_epsilon.rule, GradeRule::Missed);
+        assert_eq!(seen.physics.cause_rule, Some(CauseRule::RegistrationOffset));
         assert!(seen.note.contains("missed"), "{}", seen.note);
+        // The static grade of the same trial, from an observer in static mode.
+        let statics = observer
+            .clone()
+            .with_mode(ObserverMode::Static)
+            .grade("model", &db.meshes[model], &base_from_object, &missed)
+            .unwrap();
+        assert_eq!(statics.grade, statics.static_epsilon.grade);
 
         let stopped = observer
             .grade(
@@ -648,5 +664,27 @@ mod tests {
             (stopped.grade, stopped.cause),
             (Grade::Failure, Some(FailureCause::Execution))
         );
+    }
+
+    #[test]
+    fn two_parts_without_force_closure_fail_and_turned_fits_are_blamed_on_registration() {
+        assert_eq!(static_rule(false, 2, false, 0.0), GradeRule::TwoPartsWithoutForceClosure);
+        assert_eq!(GradeRule::TwoPartsWithoutForceClosure.grade(), Grade::Failure);
+        assert_eq!(static_rule(false, 3, false, 0.0).grade(), Grade::Partial);
+        assert_eq!(static_rule(false, 1, false, 0.0), GradeRule::Missed);
+        assert_eq!(static_rule(false, 3, true, 0.02).grade(), Grade::Partial);
+        assert_eq!(static_rule(false, 2, true, 0.08).grade(), Grade::Success);
+        let object = pose_from_params(&[0.6, 0.1, 0.0, 0.0, 0.0, 0.3]);
+        let blame = |fit: &Pose| RegistrationError::blame(Some(&RegistrationError::of(fit, &object)));
+        // In place: shape. Turned 40 deg about the vertical (a handle the wrong
+        // way): registration by yaw. Tipped 40 deg: by tilt. 3 cm off: by offset.
+        assert_eq!(blame(&object).1, CauseRule::Shape);
+        let turned = object * pose_from_params(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.7]);
+        assert_eq!(blame(&turned), (FailureCause::Registration, CauseRule::RegistrationYaw));
+        let tipped = object * pose_from_params(&[0.0, 0.0, 0.0, 0.7, 0.0, 0.0]);
+        assert_eq!(blame(&tipped).1, CauseRule::RegistrationTilt);
+        let shifted = pose_from_params(&[0.0, 0.03, 0.0, 0.0, 0.0, 0.0]) * object;
+        assert_eq!(blame(&shifted).1, CauseRule::RegistrationOffset);
+        assert_eq!(RegistrationError::blame(None).0, FailureCause::ShapeDissimilarity);
     }
 }
