@@ -404,6 +404,15 @@ impl Logger {
     }
 }
 
+/// The physics and static grades in a trial's logged outcome (as this stage writes
+/// them under `verdicts`), when both are there.
+pub fn verdict_grades(outcome: &serde_json::Value) -> Option<(Grade, Grade)> {
+    let grade = |which: &str| {
+        serde_json::from_value::<Grade>(outcome.get("verdicts")?.get(which)?.get("grade")?.clone()).ok()
+    };
+    Some((grade("physics")?, grade("static")?))
+}
+
 /// Where the snapshot of trial `trial_id` is kept: a binary PCD in the camera's
 /// optical frame, which the camera's `replay` backend reads back.
 pub fn snapshot_path(run_dir: &Path, trial_id: u64) -> PathBuf {
@@ -593,5 +602,18 @@ mod tests {
         assert_eq!(ipc_cause(None), IpcCause::None);
         assert_eq!(ipc_grade(Grade::Partial), IpcGrade::Partial);
         assert!(best_fit(None).is_none());
+    }
+
+    #[test]
+    fn both_verdicts_are_read_back_from_the_outcome() {
+        let outcome = json!({"verdicts": {
+            "physics": {"grade": "success", "cause": null},
+            "static": {"grade": "failure", "cause": "shape_dissimilarity"},
+        }});
+        assert_eq!(
+            verdict_grades(&outcome),
+            Some((Grade::Success, Grade::Failure))
+        );
+        assert_eq!(verdict_grades(&json!({"epsilon": 0.1})), None);
     }
 }

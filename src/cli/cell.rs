@@ -535,28 +535,49 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     domain.remove()?;
     let summary = Summary::of(&lines);
     let log = TrialLog::open_existing(&args.log)?;
-    let report = crate::trial::Report::from_trials(&log.trials()?, Some(&campaign_id));
+    let trials = log.trials()?;
+    let report = crate::trial::Report::from_trials(&trials, Some(&campaign_id));
+    // Both observers' verdicts of the campaign's trials, side by side.
+    let mut verdicts = crate::sim::observer::Agreement::default();
+    for t in &trials {
+        if t.trial.campaign_id.as_deref() == Some(campaign_id.as_str()) {
+            if let Some((physics, statics)) = t
+                .trial
+                .outcome
+                .as_ref()
+                .and_then(crate::cell::log::verdict_grades)
+            {
+                verdicts.add(physics, statics);
+            }
+        }
+    }
     #[derive(Serialize)]
     struct CampaignOutput {
         campaign_id: String,
         log: PathBuf,
+        observer: crate::sim::observer::ObserverMode,
         run: Vec<TrialLine>,
         summary: Summary,
         report: crate::trial::Report,
+        verdicts: crate::sim::observer::Agreement,
     }
     let out = CampaignOutput {
         campaign_id,
         log: args.log.clone(),
+        observer: args.observer.mode().unwrap_or_default(),
         run: lines,
         summary,
         report,
+        verdicts,
     };
     emit(args.json, &out, |o| {
         format!(
-            "{}\n{}{}",
+            "{}\n{}{}graded by the {} observer; {}",
             o.summary.text(),
             o.report.to_text(),
-            crate::trial::paper::comparison_text(&o.report)
+            crate::trial::paper::comparison_text(&o.report),
+            o.observer,
+            o.verdicts.to_text()
         )
     })?;
     Ok(ExitCode::SUCCESS)

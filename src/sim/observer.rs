@@ -586,6 +586,53 @@ pub fn contact_parts(
     usize::from(palm) + fingers
 }
 
+/// How often the two verdicts agree: counts of (physics grade, static grade) pairs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct Agreement {
+    /// `counts[p][s]`: trials graded `p` by physics and `s` by static epsilon, in
+    /// the order success, partial, failure.
+    pub counts: [[usize; 3]; 3],
+    /// Trials with both verdicts.
+    pub total: usize,
+    /// Trials where they agree.
+    pub agree: usize,
+}
+
+impl Agreement {
+    fn index(grade: Grade) -> usize {
+        match grade {
+            Grade::Success => 0,
+            Grade::Partial => 1,
+            Grade::Failure => 2,
+        }
+    }
+
+    /// Counts one trial.
+    pub fn add(&mut self, physics: Grade, statics: Grade) {
+        self.counts[Self::index(physics)][Self::index(statics)] += 1;
+        self.total += 1;
+        self.agree += usize::from(physics == statics);
+    }
+
+    /// The matrix as text: rows physics, columns static.
+    pub fn to_text(&self) -> String {
+        let mut text = format!(
+            "verdicts: physics (rows) against static epsilon (columns), {} of {} agree\n{:>18} {:>8} {:>8} {:>8}\n",
+            self.agree, self.total, "", "success", "partial", "failure"
+        );
+        for (name, row) in ["success", "partial", "failure"].iter().zip(&self.counts) {
+            text += &format!(
+                "{:>18} {:>8} {:>8} {:>8}\n",
+                format!("physics {name}"),
+                row[0],
+                row[1],
+                row[2]
+            );
+        }
+        text
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -664,6 +711,18 @@ mod tests {
             (stopped.grade, stopped.cause),
             (Grade::Failure, Some(FailureCause::Execution))
         );
+    }
+
+    #[test]
+    fn agreement_counts_pairs() {
+        let mut a = Agreement::default();
+        a.add(Grade::Success, Grade::Failure);
+        a.add(Grade::Success, Grade::Success);
+        a.add(Grade::Partial, Grade::Failure);
+        assert_eq!((a.total, a.agree), (3, 1));
+        assert_eq!(a.counts[0], [1, 0, 1]);
+        assert_eq!(a.counts[1][2], 1);
+        assert!(a.to_text().contains("1 of 3 agree"), "{}", a.to_text());
     }
 
     #[test]
