@@ -408,7 +408,8 @@ impl Logger {
 /// them under `verdicts`), when both are there.
 pub fn verdict_grades(outcome: &serde_json::Value) -> Option<(Grade, Grade)> {
     let grade = |which: &str| {
-        serde_json::from_value::<Grade>(outcome.get("verdicts")?.get(which)?.get("grade")?.clone()).ok()
+        serde_json::from_value::<Grade>(outcome.get("verdicts")?.get(which)?.get("grade")?.clone())
+            .ok()
     };
     Some((grade("physics")?, grade("static")?))
 }

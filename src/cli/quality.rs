@@ -492,6 +492,12 @@ struct LiftBench {
     /// Lift tests per second, parallel over all threads (the figure the goal is about).
     lift_tests_per_s: f64,
     lift_tests_per_s_one_thread: f64,
+    /// CPU time of one lift test on one thread (ms, median over repeats): its cost
+    /// whatever else the machine is doing.
+    lift_cpu_ms_one_thread: f64,
+    /// Lift tests per CPU-second of one thread times the threads of the parallel
+    /// run: the rate the cores give when the machine is otherwise idle.
+    lift_tests_per_s_cpu_bound: f64,
     goal_per_s: f64,
     meets_goal: bool,
 }
@@ -561,10 +567,9 @@ fn bench_lifts(
     let outcomes: Vec<LiftOutcome> =
         pool.install(|| poses.par_iter().map(lift).collect::<Result<_, _>>())?;
     let n = poses.len() as f64;
-    let share = |f: &dyn Fn(&LiftOutcome) -> bool| {
-        outcomes.iter().filter(|o| f(o)).count() as f64 / n
-    };
-    let (mut parallel, mut single) = (Vec::new(), Vec::new());
+    let share =
+        |f: &dyn Fn(&LiftOutcome) -> bool| outcomes.iter().filter(|o| f(o)).count() as f64 / n;
+    let (mut parallel, mut single, mut cpu) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..repeats {
         let start = Instant::now();
         let steps: usize = pool.install(|| {
@@ -575,12 +580,14 @@ fn bench_lifts(
         });
         std::hint::black_box(steps);
         parallel.push(n / start.elapsed().as_secs_f64());
-        let start = Instant::now();
+        let (start, cpu_start) = (Instant::now(), cpu_ms(true));
         let steps: usize = poses.iter().map(|p| lift(p).map_or(0, |o| o.steps)).sum();
         std::hint::black_box(steps);
         single.push(n / start.elapsed().as_secs_f64());
+        cpu.push((cpu_ms(true) - cpu_start) / n);
     }
     let lift_tests_per_s = median(&mut parallel);
+    let lift_cpu_ms = median(&mut cpu);
     Ok(LiftBench {
         workload: format!(
             "physics lift test (rapier3d, {:.0} Hz step, {} solver iterations): close, lift {} m, \
@@ -599,6 +606,8 @@ fn bench_lifts(
         mean_steps: outcomes.iter().map(|o| o.steps).sum::<usize>() as f64 / n,
         lift_tests_per_s,
         lift_tests_per_s_one_thread: median(&mut single),
+        lift_cpu_ms_one_thread: lift_cpu_ms,
+        lift_tests_per_s_cpu_bound: pool.current_num_threads() as f64 * 1e3 / lift_cpu_ms,
         goal_per_s: 20.0,
         meets_goal: lift_tests_per_s >= 20.0,
     })

@@ -90,9 +90,7 @@ pub enum ObserverError {
 }
 
 /// Which verdict is the grade.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum,
-)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum ObserverMode {
     /// The rigid-body lift test.
@@ -668,7 +666,10 @@ mod tests {
         assert_eq!(seen.static_epsilon.grade, Grade::Success, "{seen:?}");
         assert_eq!(seen.static_epsilon.rule, GradeRule::ForceClosure);
         assert!(seen.epsilon >= SUCCESS_EPSILON && seen.static_epsilon.cause.is_none());
-        let lift = seen.lift.as_ref().expect("executed grasps get the lift test");
+        let lift = seen
+            .lift
+            .as_ref()
+            .expect("executed grasps get the lift test");
         assert_eq!(seen.physics.rule, GradeRule::Lift(lift.rule));
         assert_eq!(seen.grade, seen.physics.grade);
         assert!(seen.note.contains("physics") && seen.note.contains("static"));
@@ -727,23 +728,36 @@ mod tests {
 
     #[test]
     fn two_parts_without_force_closure_fail_and_turned_fits_are_blamed_on_registration() {
-        assert_eq!(static_rule(false, 2, false, 0.0), GradeRule::TwoPartsWithoutForceClosure);
-        assert_eq!(GradeRule::TwoPartsWithoutForceClosure.grade(), Grade::Failure);
+        assert_eq!(
+            static_rule(false, 2, false, 0.0),
+            GradeRule::TwoPartsWithoutForceClosure
+        );
+        assert_eq!(
+            GradeRule::TwoPartsWithoutForceClosure.grade(),
+            Grade::Failure
+        );
         assert_eq!(static_rule(false, 3, false, 0.0).grade(), Grade::Partial);
         assert_eq!(static_rule(false, 1, false, 0.0), GradeRule::Missed);
         assert_eq!(static_rule(false, 3, true, 0.02).grade(), Grade::Partial);
         assert_eq!(static_rule(false, 2, true, 0.08).grade(), Grade::Success);
         let object = pose_from_params(&[0.6, 0.1, 0.0, 0.0, 0.0, 0.3]);
-        let blame = |fit: &Pose| RegistrationError::blame(Some(&RegistrationError::of(fit, &object)));
+        let blame =
+            |fit: &Pose| RegistrationError::blame(Some(&RegistrationError::of(fit, &object)));
         // In place: shape. Turned 40 deg about the vertical (a handle the wrong
         // way): registration by yaw. Tipped 40 deg: by tilt. 3 cm off: by offset.
         assert_eq!(blame(&object).1, CauseRule::Shape);
         let turned = object * pose_from_params(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.7]);
-        assert_eq!(blame(&turned), (FailureCause::Registration, CauseRule::RegistrationYaw));
+        assert_eq!(
+            blame(&turned),
+            (FailureCause::Registration, CauseRule::RegistrationYaw)
+        );
         let tipped = object * pose_from_params(&[0.0, 0.0, 0.0, 0.7, 0.0, 0.0]);
         assert_eq!(blame(&tipped).1, CauseRule::RegistrationTilt);
         let shifted = pose_from_params(&[0.0, 0.03, 0.0, 0.0, 0.0, 0.0]) * object;
         assert_eq!(blame(&shifted).1, CauseRule::RegistrationOffset);
-        assert_eq!(RegistrationError::blame(None).0, FailureCause::ShapeDissimilarity);
+        assert_eq!(
+            RegistrationError::blame(None).0,
+            FailureCause::ShapeDissimilarity
+        );
     }
 }

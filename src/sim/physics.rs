@@ -57,8 +57,8 @@ use parry3d_f64::transformation::vhacd::VHACDParameters;
 use rapier3d_f64::prelude::{
     CCDSolver, ColliderBuilder, ColliderHandle, ColliderSet, DefaultBroadPhase,
     GenericJointBuilder, Group, ImpulseJointHandle, ImpulseJointSet, IntegrationParameters,
-    InteractionGroups, IslandManager, JointAxesMask, JointAxis, MotorModel, MultibodyJointSet, NarrowPhase,
-    PhysicsPipeline, RigidBodyBuilder, RigidBodyHandle, RigidBodySet,
+    InteractionGroups, IslandManager, JointAxesMask, JointAxis, MotorModel, MultibodyJointSet,
+    NarrowPhase, PhysicsPipeline, RigidBodyBuilder, RigidBodyHandle, RigidBodySet,
 };
 use serde::Serialize;
 use std::path::Path;
@@ -555,7 +555,13 @@ fn link_body(pose: Pose) -> RigidBodyBuilder {
 }
 
 /// Adds `link`'s shapes as colliders of `body`; returns their handles.
-fn attach(world: &mut World, body: RigidBodyHandle, link: &HandLink, friction: f64, density: f64) -> Vec<ColliderHandle> {
+fn attach(
+    world: &mut World,
+    body: RigidBodyHandle,
+    link: &HandLink,
+    friction: f64,
+    density: f64,
+) -> Vec<ColliderHandle> {
     link.shapes
         .iter()
         .map(|(local, shape)| {
@@ -667,9 +673,9 @@ pub fn lift_test(
 
     if let Some(h) = scene.table_height_m {
         let o = scene.base_from_object.translation.vector;
-        let table = world.bodies.insert(
-            RigidBodyBuilder::fixed().pose(Isometry3::translation(o.x, o.y, h - 0.025)),
-        );
+        let table = world
+            .bodies
+            .insert(RigidBodyBuilder::fixed().pose(Isometry3::translation(o.x, o.y, h - 0.025)));
         world.colliders.insert_with_parent(
             ColliderBuilder::cuboid(1.0, 1.0, 0.025)
                 .friction(mu)
@@ -694,9 +700,9 @@ pub fn lift_test(
         &mut world.bodies,
     );
 
-    let palm = world.bodies.insert(
-        RigidBodyBuilder::kinematic_position_based().pose(scene.base_from_palm),
-    );
+    let palm = world
+        .bodies
+        .insert(RigidBodyBuilder::kinematic_position_based().pose(scene.base_from_palm));
     // Colliders of each part: palm, then F1 F2 F3 (both links).
     let mut part_colliders: Vec<Vec<ColliderHandle>> =
         vec![attach(&mut world, palm, &hand.palm, mu, 0.0)];
@@ -706,21 +712,32 @@ pub fn lift_test(
         let flex0 = finger.flex_limits_rad.0;
         let distal0 = finger.coupled_distal_rad(flex0);
         let (p, d) = finger.link_poses_from_base(&palm_from_flex_base, flex0, distal0);
-        let proximal = world
-            .bodies
-            .insert(link_body(scene.base_from_palm * p));
-        let distal = world
-            .bodies
-            .insert(link_body(scene.base_from_palm * d));
-        let mut colliders = attach(&mut world, proximal, &finger.proximal, mu, LINK_DENSITY_KG_M3);
-        colliders.extend(attach(&mut world, distal, &finger.distal, mu, LINK_DENSITY_KG_M3));
+        let proximal = world.bodies.insert(link_body(scene.base_from_palm * p));
+        let distal = world.bodies.insert(link_body(scene.base_from_palm * d));
+        let mut colliders = attach(
+            &mut world,
+            proximal,
+            &finger.proximal,
+            mu,
+            LINK_DENSITY_KG_M3,
+        );
+        colliders.extend(attach(
+            &mut world,
+            distal,
+            &finger.distal,
+            mu,
+            LINK_DENSITY_KG_M3,
+        ));
         part_colliders.push(colliders);
         let (speed, torque) = flex_drive(finger);
         let flex_align = x_onto(&finger.flex_axis());
         let flex = GenericJointBuilder::new(JointAxesMask::LOCKED_REVOLUTE_AXES)
             .local_frame1(palm_from_flex_base * flex_align)
             .local_frame2(Isometry3::from_parts(Translation3::identity(), flex_align))
-            .limits(JointAxis::AngX, [finger.flex_limits_rad.0, finger.flex_limits_rad.1])
+            .limits(
+                JointAxis::AngX,
+                [finger.flex_limits_rad.0, finger.flex_limits_rad.1],
+            )
             .motor_model(JointAxis::AngX, MotorModel::ForceBased)
             .motor_velocity(JointAxis::AngX, speed, VELOCITY_GAIN)
             .motor_max_force(JointAxis::AngX, torque)
@@ -728,7 +745,10 @@ pub fn lift_test(
         let distal_align = x_onto(&finger.distal_axis());
         let coupling = GenericJointBuilder::new(JointAxesMask::LOCKED_REVOLUTE_AXES)
             .local_frame1(finger.proximal_from_distal_base() * distal_align)
-            .local_frame2(Isometry3::from_parts(Translation3::identity(), distal_align))
+            .local_frame2(Isometry3::from_parts(
+                Translation3::identity(),
+                distal_align,
+            ))
             .limits(
                 JointAxis::AngX,
                 [finger.distal_limits_rad.0, finger.distal_limits_rad.1],
@@ -756,7 +776,10 @@ pub fn lift_test(
     let angles = |world: &World, f: &FingerBody, finger: &Finger| {
         let base = scene.base_from_palm * f.palm_from_flex_base;
         let proximal = world.pose(f.proximal);
-        let flex = twist_about(&(base.rotation.inverse() * proximal.rotation), &finger.flex_axis());
+        let flex = twist_about(
+            &(base.rotation.inverse() * proximal.rotation),
+            &finger.flex_axis(),
+        );
         let distal_base = proximal * finger.proximal_from_distal_base();
         let distal = twist_about(
             &(distal_base.rotation.inverse() * world.pose(f.distal).rotation),
@@ -793,7 +816,11 @@ pub fn lift_test(
                         );
                     }
                     let moving = (flex - f.last_flex).abs() / dt;
-                    f.stalled_s = if moving < STALL_RAD_S { f.stalled_s + dt } else { 0.0 };
+                    f.stalled_s = if moving < STALL_RAD_S {
+                        f.stalled_s + dt
+                    } else {
+                        0.0
+                    };
                     if flex >= finger.flex_limits_rad.1 - 1e-3 {
                         f.phase = FingerPhase::AtLimit;
                     } else if f.stalled_s >= STALL_TIME_S && t > 2.0 * STALL_TIME_S {
@@ -802,7 +829,12 @@ pub fn lift_test(
                         f.stalled_s = 0.0;
                         if let Some(j) = world.joints.get_mut(f.flex_joint, false) {
                             j.data
-                                .set_motor_position(JointAxis::AngX, flex, HOLD_STIFFNESS, HOLD_DAMPING)
+                                .set_motor_position(
+                                    JointAxis::AngX,
+                                    flex,
+                                    HOLD_STIFFNESS,
+                                    HOLD_DAMPING,
+                                )
                                 .set_motor_max_force(JointAxis::AngX, GEAR_HOLD_FACTOR * torque);
                         }
                         if let Some(j) = world.joints.get_mut(f.distal_joint, true) {
@@ -821,9 +853,12 @@ pub fn lift_test(
                 }
                 FingerPhase::Breakaway => {
                     let moving = (distal - f.last_distal).abs() / dt;
-                    f.stalled_s = if moving < STALL_RAD_S { f.stalled_s + dt } else { 0.0 };
-                    if distal >= finger.distal_limits_rad.1 - 1e-3 || f.stalled_s >= STALL_TIME_S
-                    {
+                    f.stalled_s = if moving < STALL_RAD_S {
+                        f.stalled_s + dt
+                    } else {
+                        0.0
+                    };
+                    if distal >= finger.distal_limits_rad.1 - 1e-3 || f.stalled_s >= STALL_TIME_S {
                         f.phase = FingerPhase::Stopped;
                     }
                 }
@@ -857,9 +892,8 @@ pub fn lift_test(
         world.bodies[palm].set_next_kinematic_position(palm_pose);
         world.step();
     }
-    let rise = |world: &World| {
-        world.pose(body).translation.vector.z - start_object.translation.vector.z
-    };
+    let rise =
+        |world: &World| world.pose(body).translation.vector.z - start_object.translation.vector.z;
     outcome.lift_height_after_lift_m = rise(&world);
     // Hold, unless the object is plainly still down (it cannot rise while held still).
     if outcome.lift_height_after_lift_m >= 0.25 * options.lift_m {
@@ -871,9 +905,8 @@ pub fn lift_test(
     }
     outcome.lift_height_m = rise(&world);
     let palm_from_object = palm_pose.inverse() * world.pose(body);
-    outcome.slip_m = (palm_from_object.translation.vector
-        - palm_from_object_closed.translation.vector)
-        .norm();
+    outcome.slip_m =
+        (palm_from_object.translation.vector - palm_from_object_closed.translation.vector).norm();
     outcome.turn_rad = palm_from_object_closed
         .rotation
         .angle_to(&palm_from_object.rotation);
@@ -916,8 +949,12 @@ mod tests {
     use crate::robot::shipped_robot;
 
     fn hand() -> HandModel {
-        HandModel::from_description(&shipped_robot().description, "bh_palm", Path::new("shipped"))
-            .unwrap()
+        HandModel::from_description(
+            &shipped_robot().description,
+            "bh_palm",
+            Path::new("shipped"),
+        )
+        .unwrap()
     }
 
     #[test]
@@ -992,9 +1029,16 @@ mod tests {
         // Deterministic: the same inputs give the same outcome, bit for bit.
         let again = lift_test(&hand, &object, &scene, &options).unwrap();
         assert_eq!(held, again);
-        assert_eq!((held.grade, held.rule), (Grade::Success, LiftRule::Held), "{held:?}");
+        assert_eq!(
+            (held.grade, held.rule),
+            (Grade::Success, LiftRule::Held),
+            "{held:?}"
+        );
         assert!(held.lift_height_m > 0.09 && held.slip_m < 0.01, "{held:?}");
-        assert_eq!((missed.grade, missed.rule), (Grade::Failure, LiftRule::NotLifted));
+        assert_eq!(
+            (missed.grade, missed.rule),
+            (Grade::Failure, LiftRule::NotLifted)
+        );
         assert!(missed.contacts.is_empty() && missed.lift_height_m.abs() < 1e-3);
     }
 
@@ -1007,7 +1051,10 @@ mod tests {
             ..scene
         };
         let out = lift_test(&hand, &object, &inside, &PhysicsOptions::default()).unwrap();
-        assert_eq!((out.grade, out.rule), (Grade::Failure, LiftRule::StartCollision));
+        assert_eq!(
+            (out.grade, out.rule),
+            (Grade::Failure, LiftRule::StartCollision)
+        );
         assert_eq!(out.steps, 0);
         assert!(out.start_collision.is_some());
     }
@@ -1068,8 +1115,15 @@ mod tests {
             table_height_m: Some(0.0),
         };
         let out = lift_test(&hand, &object, &scene, &options).unwrap();
-        eprintln!("{} poses with epsilon 0; first: yaw {yaw_deg} deg, gap {gap_m} m: {out:#?}", zero_epsilon.len());
-        assert_eq!((out.grade, out.rule), (Grade::Success, LiftRule::Held), "{out:?}");
+        eprintln!(
+            "{} poses with epsilon 0; first: yaw {yaw_deg} deg, gap {gap_m} m: {out:#?}",
+            zero_epsilon.len()
+        );
+        assert_eq!(
+            (out.grade, out.rule),
+            (Grade::Success, LiftRule::Held),
+            "{out:?}"
+        );
         assert!(out.contacts.contains(&"palm".to_string()), "{out:?}");
     }
 }
