@@ -264,6 +264,21 @@ pub fn mean_rotation(
     project_to_so3(&sum)
 }
 
+/// Tilt and yaw (deg) of the frame `model` relative to `object`: the tilt is the
+/// angle between their z axes (0 upright, 90 lying on its side, 180 upside down);
+/// the yaw is the rotation about the object's z axis (0..180, the twist of the
+/// swing-twist decomposition), e.g. where a mug's handle ends up. The measure of a
+/// registration's orientation error for objects whose models share a canonical
+/// frame (base centre at the origin, z up).
+pub fn tilt_and_yaw_deg(object: &Pose, model: &Pose) -> (f64, f64) {
+    let rel = object.rotation.inverse() * model.rotation;
+    let z = Vector3::z();
+    let tilt = (rel * z).angle(&z);
+    let q = rel.quaternion();
+    let yaw = wrap_angle(2.0 * q.k.atan2(q.w)).abs();
+    (tilt.to_degrees(), yaw.to_degrees())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

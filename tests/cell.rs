@@ -51,6 +51,7 @@ fn start(tag: &str, domain: &Domain) -> Fixture {
         trial_timeout_s: 120.0,
         simulated_devices: true,
         home_joints_rad: HOME_JOINTS_RAD,
+        observer: Default::default(),
     };
     Fixture {
         cell: Cell::start(options, domain.clone()).expect("cell starts"),

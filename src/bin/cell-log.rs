@@ -16,8 +16,9 @@ struct Args {
     /// The trial log (default: `<run dir>/trials.sqlite`).
     #[arg(long, value_name = "FILE")]
     log: Option<PathBuf>,
-    /// Who grades the trials.
-    #[arg(long, value_enum, default_value_t = ObserverKind::Sim)]
+    /// Who grades the trials: the simulated observer by physics (default) or by
+    /// static epsilon (both verdicts are logged either way), or a person.
+    #[arg(long, value_enum, default_value_t = ObserverKind::Physics)]
     observer: ObserverKind,
     /// Longest a trial may take before it is recorded as timed out (s).
     #[arg(long, default_value_t = 120.0)]

@@ -45,6 +45,8 @@ pub struct HarnessOptions {
     pub simulated_devices: bool,
     /// Joints A1..A6 (rad) the simulated arm starts at.
     pub home_joints_rad: [f64; 7],
+    /// Who grades the trials (the log stage's `--observer`).
+    pub observer: super::log::ObserverKind,
 }
 
 impl HarnessOptions {
@@ -65,6 +67,7 @@ impl HarnessOptions {
             trial_timeout_s: 120.0,
             simulated_devices: true,
             home_joints_rad: HOME_JOINTS_RAD,
+            observer: super::log::ObserverKind::default(),
         })
     }
 }
@@ -390,6 +393,8 @@ impl Cell {
                 self.options.trial_timeout_s.to_string(),
                 "--db-dir".into(),
                 self.options.db_dir.display().to_string(),
+                "--observer".into(),
+                self.options.observer.arg().into(),
             ]),
             _ => {}
         }

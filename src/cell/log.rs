@@ -24,7 +24,7 @@ use crate::ipc::{
     StageStatus, Timings, TrialRequest, TrialResult, Wakeable,
 };
 use crate::robot::Robot;
-use crate::sim::observer::{Attempt, Observation, Observer};
+use crate::sim::observer::{Attempt, Observation, Observer, ObserverMode};
 use crate::trial::{
     FailureCause, Grade, GradeSource, Grading, NewTrial, ObjectRef, Placement, TrialLog,
     UtcTimestamp,
@@ -35,12 +35,38 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// Who grades the trials.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum ObserverKind {
-    /// The simulated observer (grasp simulator on the true object).
-    Sim,
+    /// The simulated observer grading by the physics lift test (`sim` is an alias);
+    /// the static verdict is recorded beside it.
+    #[default]
+    #[value(alias = "sim")]
+    Physics,
+    /// The simulated observer grading by static epsilon (the earlier grading); the
+    /// physics verdict is recorded beside it.
+    Static,
     /// A person at the terminal (s / p / f, cause, note).
     Terminal,
+}
+
+impl ObserverKind {
+    /// The simulated observer's mode, `None` for a person.
+    pub fn mode(self) -> Option<ObserverMode> {
+        match self {
+            ObserverKind::Physics => Some(ObserverMode::Physics),
+            ObserverKind::Static => Some(ObserverMode::Static),
+            ObserverKind::Terminal => None,
+        }
+    }
+
+    /// The command-line value (`physics`, `static`, `terminal`).
+    pub fn arg(self) -> &'static str {
+        match self {
+            ObserverKind::Physics => "physics",
+            ObserverKind::Static => "static",
+            ObserverKind::Terminal => "terminal",
+        }
+    }
 }
 
 /// Options of the log stage besides the configuration.
@@ -287,7 +313,7 @@ impl Logger {
                     crate::trial::prompt_grade(std::io::stdin().lock(), std::io::stderr().lock())?;
                 Ok((grading, GradeSource::Observer, None))
             }
-            ObserverKind::Sim => {
+            ObserverKind::Physics | ObserverKind::Static => {
                 let (Some(observer), Some(setup)) = (&self.observer, setup) else {
                     return died(
                         "no trial setup: the simulated observer cannot grade it".to_string(),
@@ -447,6 +473,13 @@ impl Logger {
                 "registration_error_m": seen.as_ref().and_then(|s| s.registration_error_m),
                 "closing_joints_rad": trial.closing_joints,
                 "spread_rad": trial.plan.map(|p| p.spread_rad),
+                "observer": seen.as_ref().map(|s| s.mode),
+                "verdicts": seen.as_ref().map(|s| json!({
+                    "physics": s.physics,
+                    "static": s.static_epsilon,
+                })),
+                "lift": seen.as_ref().and_then(|s| s.lift.as_ref()),
+                "registration": seen.as_ref().and_then(|s| s.registration),
                 "timings_s": timings,
                 "gravity": gravity,
                 "raw_frame": raw_frame.join(crate::hw::kinect::fakenect::INDEX_FILE).is_file().then_some(raw_frame),
@@ -476,6 +509,16 @@ impl Logger {
 /// Where the picture of the trial logged as `log_id` is kept.
 pub fn picture_path(run_dir: &Path, log_id: crate::trial::TrialId) -> PathBuf {
     run_dir.join("pictures").join(format!("{log_id}.png"))
+}
+
+/// The physics and static grades in a trial's logged outcome (as this stage writes
+/// them under `verdicts`), when both are there.
+pub fn verdict_grades(outcome: &serde_json::Value) -> Option<(Grade, Grade)> {
+    let grade = |which: &str| {
+        serde_json::from_value::<Grade>(outcome.get("verdicts")?.get(which)?.get("grade")?.clone())
+            .ok()
+    };
+    Some((grade("physics")?, grade("static")?))
 }
 
 /// Where the snapshot of trial `trial_id` is kept: a binary PCD in the camera's
@@ -529,11 +572,13 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
         })?;
     }
     let log = TrialLog::open(&options.log_path)?;
-    let observer = match options.observer {
-        ObserverKind::Sim => {
-            Some(Observer::new(config).map_err(|e| CellError::Invalid(e.to_string()))?)
-        }
-        ObserverKind::Terminal => None,
+    let observer = match options.observer.mode() {
+        Some(mode) => Some(
+            Observer::new(config)
+                .map_err(|e| CellError::Invalid(e.to_string()))?
+                .with_mode(mode),
+        ),
+        None => None,
     };
     let mut logger = Logger {
         robot: Robot::load(config)?,
@@ -692,5 +737,18 @@ mod tests {
         assert_eq!(ipc_cause(None), IpcCause::None);
         assert_eq!(ipc_grade(Grade::Partial), IpcGrade::Partial);
         assert!(best_fit(None).is_none());
+    }
+
+    #[test]
+    fn both_verdicts_are_read_back_from_the_outcome() {
+        let outcome = json!({"verdicts": {
+            "physics": {"grade": "success", "cause": null},
+            "static": {"grade": "failure", "cause": "shape_dissimilarity"},
+        }});
+        assert_eq!(
+            verdict_grades(&outcome),
+            Some((Grade::Success, Grade::Failure))
+        );
+        assert_eq!(verdict_grades(&json!({"epsilon": 0.1})), None);
     }
 }

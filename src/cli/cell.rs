@@ -186,6 +186,9 @@ pub struct DemoArgs {
     /// How long the executor holds each lifted object (s).
     #[arg(long, default_value_t = 0.3)]
     pub hold_s: f64,
+    /// Who grades: the physics lift test or static epsilon (both verdicts are logged).
+    #[arg(long, value_enum, default_value_t = crate::cell::log::ObserverKind::Physics)]
+    pub observer: crate::cell::log::ObserverKind,
     /// Print one JSON document instead of lines.
     #[arg(long)]
     pub json: bool,
@@ -231,6 +234,9 @@ pub struct CampaignArgs {
     /// How long the executor holds each lifted object (s).
     #[arg(long, default_value_t = 0.3)]
     pub hold_s: f64,
+    /// Who grades: the physics lift test or static epsilon (both verdicts are logged).
+    #[arg(long, value_enum, default_value_t = crate::cell::log::ObserverKind::Physics)]
+    pub observer: crate::cell::log::ObserverKind,
     /// Print one JSON document instead of lines.
     #[arg(long)]
     pub json: bool,
@@ -513,6 +519,7 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
     let mut options = HarnessOptions::demo(stage)?;
     options.db_dir = args.kind.db_dir.clone();
     options.hold_s = args.hold_s;
+    options.observer = args.observer;
     crate::cell::install_stop_handler();
     eprintln!("starting the cell (5 stages, simulated arm and hand) ...");
     let mut cell = Cell::start(options, (*domain).clone()).context("starting the cell")?;
@@ -688,6 +695,7 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     let mut options = HarnessOptions::demo(stage)?;
     options.db_dir = args.kind.db_dir.clone();
     options.hold_s = args.hold_s;
+    options.observer = args.observer;
     options.log_path = args.log.clone();
     crate::cell::install_stop_handler();
     let lines = {
@@ -703,11 +711,29 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     let summary = Summary::of(&lines);
     let log = TrialLog::open_existing(&args.log)?;
     let trials = log.trials()?;
+    // Both observers' verdicts of a campaign's trials, side by side.
+    let agreement = |id: &str| {
+        let mut verdicts = crate::sim::observer::Agreement::default();
+        for t in &trials {
+            if t.trial.campaign_id.as_deref() == Some(id) {
+                if let Some((physics, statics)) = t
+                    .trial
+                    .outcome
+                    .as_ref()
+                    .and_then(crate::cell::log::verdict_grades)
+                {
+                    verdicts.add(physics, statics);
+                }
+            }
+        }
+        verdicts
+    };
     #[derive(Serialize)]
     struct TaskReport {
         task: String,
         campaign_id: String,
         report: crate::trial::Report,
+        verdicts: crate::sim::observer::Agreement,
     }
     let reports: Vec<TaskReport> = tasks
         .iter()
@@ -716,6 +742,7 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
             TaskReport {
                 task: task.clone(),
                 report: crate::trial::Report::from_trials(&trials, Some(&id)),
+                verdicts: agreement(&id),
                 campaign_id: id,
             }
         })
@@ -723,6 +750,7 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     #[derive(Serialize)]
     struct CampaignOutput {
         log: PathBuf,
+        observer: crate::sim::observer::ObserverMode,
         lab: LabErrors,
         run: Vec<TrialLine>,
         summary: Summary,
@@ -731,6 +759,7 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     }
     let out = CampaignOutput {
         log: args.log.clone(),
+        observer: args.observer.mode().unwrap_or_default(),
         lab: world.lab,
         by_task: TaskRow::of(&lines, &tasks, &args.methods),
         run: lines,
@@ -742,10 +771,12 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
         text += &TaskRow::table(&o.by_task);
         for t in &o.tasks {
             text += &format!(
-                "\n== task {} ==\n{}{}",
+                "\n== task {} ==\n{}{}graded by the {} observer; {}",
                 t.task,
                 t.report.to_text(),
-                crate::trial::paper::comparison_text(&t.report)
+                crate::trial::paper::comparison_text(&t.report),
+                o.observer,
+                t.verdicts.to_text()
             );
         }
         text

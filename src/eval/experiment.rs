@@ -180,18 +180,9 @@ pub struct FitSummary {
     pub handle_visible: bool,
 }
 
-/// Tilt and yaw (deg) of `model` relative to `object`, as [`FitSummary`] defines them.
-pub fn tilt_and_yaw_deg(
-    object: &crate::geometry::Pose,
-    model: &crate::geometry::Pose,
-) -> (f64, f64) {
-    let rel = object.rotation.inverse() * model.rotation;
-    let z = nalgebra::Vector3::z();
-    let tilt = (rel * z).angle(&z);
-    let q = rel.quaternion();
-    let yaw = crate::geometry::wrap_angle(2.0 * q.k.atan2(q.w)).abs();
-    (tilt.to_degrees(), yaw.to_degrees())
-}
+/// Tilt and yaw (deg) of `model` relative to `object`, as [`FitSummary`] defines
+/// them (the measure lives in [`crate::geometry`], where the observer uses it too).
+pub use crate::geometry::tilt_and_yaw_deg;
 
 /// Registration over the targets of an experiment, in the units a reader checks.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]

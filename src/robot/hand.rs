@@ -95,6 +95,10 @@ pub struct Finger {
     pub flex_limits_rad: (f64, f64),
     /// Distal joint limits (rad), from the URDF's mimic joint.
     pub distal_limits_rad: (f64, f64),
+    /// The flex joint's torque limit (N m, the URDF's effort).
+    pub flex_effort_nm: f64,
+    /// The flex joint's speed limit (rad/s, the URDF's velocity).
+    pub flex_velocity_rad_s: f64,
     /// The proximal link.
     pub proximal: HandLink,
     /// The distal link.
@@ -129,6 +133,21 @@ impl Finger {
             * self.distal_origin
             * UnitQuaternion::from_axis_angle(&self.distal_axis, distal_rad);
         (proximal, distal)
+    }
+
+    /// The flex joint's axis (unit, in the flex base frame and the proximal link's).
+    pub fn flex_axis(&self) -> Unit<Vector3<f64>> {
+        self.flex_axis
+    }
+
+    /// The distal joint's frame before its rotation, in the proximal link's frame.
+    pub fn proximal_from_distal_base(&self) -> Pose {
+        self.distal_origin
+    }
+
+    /// The distal joint's axis (unit, in its base frame and the distal link's).
+    pub fn distal_axis(&self) -> Unit<Vector3<f64>> {
+        self.distal_axis
     }
 
     /// The distal joint's angle while coupled to the flex joint.
@@ -313,6 +332,8 @@ impl HandModel {
                 distal_offset_rad: offset,
                 flex_limits_rad: flex_limits,
                 distal_limits_rad: (ends[0].min(ends[1]), ends[0].max(ends[1])),
+                flex_effort_nm: description.variables[flex_var].effort_nm,
+                flex_velocity_rad_s: description.variables[flex_var].velocity_rad_s,
                 proximal: proximal_link,
                 distal: distal_link,
             });

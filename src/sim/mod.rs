@@ -6,6 +6,7 @@ pub mod camera;
 pub mod fri;
 pub mod lab;
 pub mod observer;
+pub mod physics;
 pub mod puck;
 pub mod scene;
 pub mod world;

@@ -1,44 +1,56 @@
 //! The simulated observer: grades an executed grasp as the paper's observer did —
-//! success, partial or failure, and a failure's cause — from the grasp simulator on
-//! the object's true mesh at its true pose.
+//! success, partial or failure, and a failure's cause — on the object's true mesh at
+//! its true pose. Two verdicts are computed for every executed grasp and both are
+//! reported; [`ObserverMode`] says which one is the grade.
 //!
-//! # Grading
-//! The hand is closed (auto-grasp, [`crate::quality::autograsp`]) at the executed
-//! palm pose and spread around the true object, with the table as an obstacle, and
-//! the Ferrari–Canny epsilon of the contacts is computed (mu 0.5, 8-edge cones,
-//! torque scale the object's radius: the training database's metric).
+//! # Physics (the default): does the object come up and stay put?
+//! [`crate::sim::physics::lift_test`]: the hand closes at the executed palm pose and
+//! spread around the free object on the table (rapier3d), lifts 0.10 m and holds 2 s.
+//! Success: the object moved under 1 cm and 10 deg relative to the palm; partial:
+//! lifted but slipped or turned more; failure: not lifted, dropped, pushed away, or an
+//! open hand that already intersects the object or the table.
 //!
-//! - **success**: force closure with a margin, `epsilon >= `[`SUCCESS_EPSILON`]
-//!   (0.05). The training grasps of the mug database have q = 0.09 to 0.28; below
-//!   0.05 a grasp resists only a small fraction of the unit wrench ball and a real
-//!   hand lifting a real mug would be seen to let it turn or slip.
-//! - **partial**: the fingers hold the object (at least two contacts) but without
-//!   that margin (force closure below 0.05, or none): lifted, but it moves in the
-//!   hand.
-//! - **failure**: the open hand collides with the object or the table at the grasp
-//!   (it would push the object away), fewer than two fingers touch it (missed), no
-//!   plan was executed (unreachable, no registration) or the execution stopped.
+//! # Static (`--observer static`, the earlier grading, for comparison)
+//! The hand closes (auto-grasp, [`crate::quality::autograsp`]) around the object held
+//! fixed, with the table as an obstacle, and the Ferrari–Canny epsilon of the
+//! contacts is computed (mu 0.5, 8-edge cones, torque scale the object's radius: the
+//! training database's metric). Contacts are counted per hand part (palm, F1, F2, F3),
+//! not per contact point.
+//! - **success**: force closure with a margin, `epsilon >= `[`SUCCESS_EPSILON`] (0.05).
+//! - **partial**: force closure below that margin, or three or more parts touching
+//!   without force closure.
+//! - **failure**: the open hand collides, fewer than two parts touch (missed), or two
+//!   parts touch without force closure (the object would fall).
 //!
-//! # Causes
-//! - not planned: the planner's cause (reachability, registration);
-//! - execution stopped by the executor (its safety layer, a device fault, no
-//!   contact, grasp lost): execution;
-//! - executed but not a success: registration when the best-fitting model's origin
-//!   lies more than [`REGISTRATION_TOLERANCE_M`] (2 cm) from the object's true
-//!   origin (the models and objects share the procedural frame: base centre, z up),
-//!   else shape dissimilarity (the models were in place; their shape misled the
-//!   grasp).
+//! Not executed (unreachable, no registration) or stopped by the executor: failure
+//! in both verdicts.
+//!
+//! # Causes (of anything but a success), with the rule that named them
+//! - not planned: the planner's cause ([`CauseRule::Planner`]);
+//! - stopped by the executor: execution ([`CauseRule::Executor`]);
+//! - executed: registration when the best-fitting model's origin lies more than
+//!   [`REGISTRATION_TOLERANCE_M`] (2 cm) from the object's true origin, or its tilt
+//!   or yaw ([`crate::geometry::tilt_and_yaw_deg`]) is off by more than
+//!   [`REGISTRATION_TOLERANCE_DEG`] (30 deg) — the models and objects share the
+//!   procedural frame: base centre, z up, a mug's handle along +x; else shape
+//!   dissimilarity (the models were in place; their shape misled the grasp).
 
 use crate::config::CellConfig;
-use crate::geometry::Pose;
+use crate::geometry::{tilt_and_yaw_deg, Pose};
 use crate::mesh::TriMesh;
 use crate::quality::autograsp::{evaluate_grasp, AutoGraspOptions, GraspObject, GraspSimError};
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
 use crate::robot::RobotError;
+use crate::sim::physics::{
+    lift_test, LiftOutcome, LiftRule, LiftScene, PhysicsError, PhysicsObject, PhysicsOptions,
+};
 use crate::trial::{FailureCause, Grade};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::hash::{Hash, Hasher};
 use std::path::Path;
+use std::sync::{Arc, Mutex};
 
 /// Epsilon from which a force-closure grasp counts as a success.
 pub const SUCCESS_EPSILON: f64 = 0.05;
@@ -46,7 +58,11 @@ pub const SUCCESS_EPSILON: f64 = 0.05;
 /// Registration error (m) above which a failed grasp is blamed on registration.
 pub const REGISTRATION_TOLERANCE_M: f64 = 0.02;
 
-/// Contacts needed to hold the object at all.
+/// Tilt or yaw error (deg) of the best fit above which a failed grasp is blamed on
+/// registration.
+pub const REGISTRATION_TOLERANCE_DEG: f64 = 30.0;
+
+/// Hand parts (palm, fingers) that must touch the object to hold it at all.
 pub const HOLDING_CONTACTS: usize = 2;
 
 /// Errors of the observer.
@@ -63,6 +79,34 @@ pub enum ObserverError {
         /// Why.
         source: GraspSimError,
     },
+    /// The physics simulation failed.
+    #[error("observer: physics of {object}: {source}")]
+    Physics {
+        /// The object.
+        object: String,
+        /// Why.
+        source: PhysicsError,
+    },
+}
+
+/// Which verdict is the grade.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum ObserverMode {
+    /// The rigid-body lift test.
+    #[default]
+    Physics,
+    /// Static force closure (Ferrari–Canny epsilon), the earlier grading.
+    Static,
+}
+
+impl std::fmt::Display for ObserverMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ObserverMode::Physics => "physics",
+            ObserverMode::Static => "static",
+        })
+    }
 }
 
 /// What happened to the trial before the observer looks.
@@ -91,21 +135,209 @@ pub enum Attempt {
     },
 }
 
-/// The observer's verdict.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Observation {
+/// The rule that decided a grade.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GradeRule {
+    /// No grasp was executed.
+    NotPlanned,
+    /// The executor stopped the grasp.
+    ExecutionStopped,
+    /// Static: the open hand collides with the object or the table.
+    StartCollision,
+    /// Static: fewer than two hand parts touch.
+    Missed,
+    /// Static: two hand parts touch without force closure.
+    TwoPartsWithoutForceClosure,
+    /// Static: three or more parts touch without force closure.
+    NoForceClosure,
+    /// Static: force closure below [`SUCCESS_EPSILON`].
+    BelowMargin,
+    /// Static: force closure with the margin.
+    ForceClosure,
+    /// Physics: the lift test's rule.
+    Lift(LiftRule),
+}
+
+/// The rule that named a cause.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CauseRule {
+    /// The planner's cause.
+    Planner,
+    /// The executor stopped.
+    Executor,
+    /// The best fit's origin is off by more than [`REGISTRATION_TOLERANCE_M`].
+    RegistrationOffset,
+    /// The best fit's tilt is off by more than [`REGISTRATION_TOLERANCE_DEG`].
+    RegistrationTilt,
+    /// The best fit's yaw is off by more than [`REGISTRATION_TOLERANCE_DEG`].
+    RegistrationYaw,
+    /// The models were in place: shape dissimilarity.
+    Shape,
+}
+
+/// One verdict: the grade, its cause and the rules behind both.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Verdict {
     /// The grade.
     pub grade: Grade,
     /// Why it was not a success (`None` for a success).
     pub cause: Option<FailureCause>,
-    /// Epsilon of the simulated grasp (0 when not simulated or no force closure).
+    /// The rule that decided the grade.
+    pub rule: GradeRule,
+    /// The rule that named the cause.
+    pub cause_rule: Option<CauseRule>,
+}
+
+/// How far the best fit was from the object's true pose.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RegistrationError {
+    /// Distance of the origins (m).
+    pub offset_m: f64,
+    /// Tilt between the z axes (deg).
+    pub tilt_deg: f64,
+    /// Rotation about the object's z axis (deg).
+    pub yaw_deg: f64,
+}
+
+impl RegistrationError {
+    /// The error of `best_fit` against the object's true pose.
+    pub fn of(best_fit: &Pose, base_from_object: &Pose) -> RegistrationError {
+        let (tilt_deg, yaw_deg) = tilt_and_yaw_deg(base_from_object, best_fit);
+        RegistrationError {
+            offset_m: (best_fit.translation.vector - base_from_object.translation.vector).norm(),
+            tilt_deg,
+            yaw_deg,
+        }
+    }
+
+    /// The cause of a failed executed grasp and the rule that named it.
+    pub fn blame(error: Option<&RegistrationError>) -> (FailureCause, CauseRule) {
+        match error {
+            Some(e) if e.offset_m > REGISTRATION_TOLERANCE_M => {
+                (FailureCause::Registration, CauseRule::RegistrationOffset)
+            }
+            Some(e) if e.tilt_deg > REGISTRATION_TOLERANCE_DEG => {
+                (FailureCause::Registration, CauseRule::RegistrationTilt)
+            }
+            Some(e) if e.yaw_deg > REGISTRATION_TOLERANCE_DEG => {
+                (FailureCause::Registration, CauseRule::RegistrationYaw)
+            }
+            _ => (FailureCause::ShapeDissimilarity, CauseRule::Shape),
+        }
+    }
+}
+
+/// The observer's verdicts on one trial.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Observation {
+    /// Which verdict is the grade.
+    pub mode: ObserverMode,
+    /// The grade (of `mode`'s verdict).
+    pub grade: Grade,
+    /// Why it was not a success (`None` for a success).
+    pub cause: Option<FailureCause>,
+    /// The physics verdict.
+    pub physics: Verdict,
+    /// The static (epsilon) verdict.
+    pub static_epsilon: Verdict,
+    /// The lift test's numbers (`None` when nothing was executed).
+    pub lift: Option<LiftOutcome>,
+    /// Epsilon of the static grasp (0 when not simulated or no force closure).
     pub epsilon: f64,
-    /// Contacts of the simulated grasp.
+    /// Hand parts (palm, F1, F2, F3) touching the object in the static grasp.
     pub contacts: usize,
     /// Distance of the best fit's origin from the true origin (m), when known.
     pub registration_error_m: Option<f64>,
+    /// The best fit's full error, when known.
+    pub registration: Option<RegistrationError>,
     /// One line for the trial log's observer note.
     pub note: String,
+}
+
+impl Observation {
+    /// The verdict of `mode`.
+    pub fn verdict(&self, mode: ObserverMode) -> &Verdict {
+        match mode {
+            ObserverMode::Physics => &self.physics,
+            ObserverMode::Static => &self.static_epsilon,
+        }
+    }
+}
+
+/// The static verdict's grade and rule from the closing simulation.
+fn static_rule(collides: bool, parts: usize, force_closure: bool, epsilon: f64) -> GradeRule {
+    if collides {
+        GradeRule::StartCollision
+    } else if parts < HOLDING_CONTACTS {
+        GradeRule::Missed
+    } else if force_closure && epsilon >= SUCCESS_EPSILON {
+        GradeRule::ForceClosure
+    } else if force_closure {
+        GradeRule::BelowMargin
+    } else if parts == HOLDING_CONTACTS {
+        GradeRule::TwoPartsWithoutForceClosure
+    } else {
+        GradeRule::NoForceClosure
+    }
+}
+
+impl GradeRule {
+    /// The grade this rule gives.
+    pub fn grade(self) -> Grade {
+        match self {
+            GradeRule::ForceClosure => Grade::Success,
+            GradeRule::BelowMargin | GradeRule::NoForceClosure => Grade::Partial,
+            GradeRule::Lift(rule) => rule.grade(),
+            _ => Grade::Failure,
+        }
+    }
+
+    /// A short phrase for notes.
+    pub fn phrase(self) -> &'static str {
+        match self {
+            GradeRule::NotPlanned => "not executed",
+            GradeRule::ExecutionStopped => "execution stopped",
+            GradeRule::StartCollision => "open hand collides",
+            GradeRule::Missed => "missed",
+            GradeRule::TwoPartsWithoutForceClosure => "two parts without force closure",
+            GradeRule::NoForceClosure => "contacts without force closure",
+            GradeRule::BelowMargin => "force closure below the margin",
+            GradeRule::ForceClosure => "force closure with margin",
+            GradeRule::Lift(LiftRule::Held) => "lifted and held",
+            GradeRule::Lift(LiftRule::Slipped) => "lifted but slipped",
+            GradeRule::Lift(LiftRule::StartCollision) => "open hand collides",
+            GradeRule::Lift(LiftRule::PushedAway) => "pushed away while closing",
+            GradeRule::Lift(LiftRule::Dropped) => "dropped during the hold",
+            GradeRule::Lift(LiftRule::NotLifted) => "not lifted",
+        }
+    }
+}
+
+/// A verdict from a rule, with the cause of anything but a success.
+fn verdict(rule: GradeRule, blame: (FailureCause, CauseRule)) -> Verdict {
+    let grade = rule.grade();
+    let failed = grade != Grade::Success;
+    Verdict {
+        grade,
+        cause: failed.then_some(blame.0),
+        rule,
+        cause_rule: failed.then_some(blame.1),
+    }
+}
+
+/// A key for a mesh's prepared physics object: its name and a hash of its data.
+fn mesh_key(object: &str, mesh: &TriMesh) -> u64 {
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    object.hash(&mut h);
+    for v in &mesh.vertices {
+        for c in v.iter() {
+            c.to_bits().hash(&mut h);
+        }
+    }
+    mesh.triangles.hash(&mut h);
+    h.finish()
 }
 
 /// The simulated observer of a cell.
@@ -115,21 +347,75 @@ pub struct Observer {
     table_height_m: f64,
     params: QualityParams,
     options: AutoGraspOptions,
+    physics: PhysicsOptions,
+    mode: ObserverMode,
+    /// Prepared physics objects (convex decompositions) by mesh.
+    prepared: Arc<Mutex<HashMap<u64, Arc<PhysicsObject>>>>,
 }
 
 impl Observer {
-    /// The observer of the cell in `config` (hand model and table).
+    /// The observer of the cell in `config` (hand model and table), grading by physics.
     pub fn new(config: &CellConfig) -> Result<Observer, ObserverError> {
-        Ok(Observer {
-            hand: HandModel::load(config)?,
-            table_height_m: config.table.height_m,
-            params: QualityParams::default(),
-            options: AutoGraspOptions::default(),
-        })
+        Ok(Observer::from_hand(
+            HandModel::load(config)?,
+            config.table.height_m,
+        ))
     }
 
-    /// Grades `attempt` on the object `mesh` (named `object`) standing at
-    /// `base_from_object`.
+    /// An observer of `hand` over a table at `table_height_m` (base z), grading by
+    /// physics with the default options.
+    pub fn from_hand(hand: HandModel, table_height_m: f64) -> Observer {
+        Observer {
+            hand,
+            table_height_m,
+            params: QualityParams::default(),
+            options: AutoGraspOptions::default(),
+            physics: PhysicsOptions::default(),
+            mode: ObserverMode::default(),
+            prepared: Arc::default(),
+        }
+    }
+
+    /// The same observer grading by `mode`.
+    pub fn with_mode(mut self, mode: ObserverMode) -> Observer {
+        self.mode = mode;
+        self
+    }
+
+    /// The same observer with these physics options (checked at the first grade).
+    pub fn with_physics(mut self, options: PhysicsOptions) -> Observer {
+        self.physics = options;
+        self.prepared = Arc::default();
+        self
+    }
+
+    /// Which verdict is the grade.
+    pub fn mode(&self) -> ObserverMode {
+        self.mode
+    }
+
+    /// The prepared physics object of `mesh` (decomposed once, then cached).
+    fn prepared(&self, object: &str, mesh: &TriMesh) -> Result<Arc<PhysicsObject>, ObserverError> {
+        let key = mesh_key(object, mesh);
+        if let Some(p) = self.prepared.lock().ok().and_then(|m| m.get(&key).cloned()) {
+            return Ok(p);
+        }
+        let p = Arc::new(
+            PhysicsObject::new(mesh, Path::new(object), &self.physics).map_err(|source| {
+                ObserverError::Physics {
+                    object: object.to_string(),
+                    source,
+                }
+            })?,
+        );
+        if let Ok(mut m) = self.prepared.lock() {
+            m.insert(key, p.clone());
+        }
+        Ok(p)
+    }
+
+    /// Grades `attempt` on the object `mesh` (named `object`) standing upright at
+    /// `base_from_object` on the table: both verdicts, the grade of the observer's mode.
     pub fn grade(
         &self,
         object: &str,
@@ -139,24 +425,18 @@ impl Observer {
     ) -> Result<Observation, ObserverError> {
         let (base_from_palm, spread_rad, best_fit) = match attempt {
             Attempt::NotPlanned { cause, detail } => {
-                return Ok(Observation {
-                    grade: Grade::Failure,
-                    cause: Some(*cause),
-                    epsilon: 0.0,
-                    contacts: 0,
-                    registration_error_m: None,
-                    note: format!("not executed: {detail}"),
-                })
+                return Ok(self.unexecuted(
+                    GradeRule::NotPlanned,
+                    (*cause, CauseRule::Planner),
+                    format!("not executed: {detail}"),
+                ))
             }
             Attempt::Stopped { kind } => {
-                return Ok(Observation {
-                    grade: Grade::Failure,
-                    cause: Some(FailureCause::Execution),
-                    epsilon: 0.0,
-                    contacts: 0,
-                    registration_error_m: None,
-                    note: format!("execution stopped: {kind}"),
-                })
+                return Ok(self.unexecuted(
+                    GradeRule::ExecutionStopped,
+                    (FailureCause::Execution, CauseRule::Executor),
+                    format!("execution stopped: {kind}"),
+                ))
             }
             Attempt::Executed {
                 base_from_palm,
@@ -185,59 +465,169 @@ impl Observer {
             false,
         )
         .map_err(simulation)?;
-        let contacts = evaluation.outcome.contacts.len();
+        let contacts = contact_parts(&self.hand, &evaluation.outcome.contacts);
         let epsilon = evaluation.epsilon;
-        let registration_error_m = best_fit
+        let registration = best_fit
             .as_ref()
-            .map(|fit| (fit.translation.vector - base_from_object.translation.vector).norm());
-        let blame = || match registration_error_m {
-            Some(e) if e > REGISTRATION_TOLERANCE_M => FailureCause::Registration,
-            _ => FailureCause::ShapeDissimilarity,
+            .map(|fit| RegistrationError::of(fit, base_from_object));
+        let blame = RegistrationError::blame(registration.as_ref());
+        let static_epsilon = verdict(
+            static_rule(
+                evaluation.outcome.collision_at_start.is_some(),
+                contacts,
+                evaluation.force_closure,
+                epsilon,
+            ),
+            blame,
+        );
+
+        let body = self.prepared(object, mesh)?;
+        let lift = lift_test(
+            &self.hand,
+            &body,
+            &LiftScene {
+                base_from_object: *base_from_object,
+                base_from_palm: *base_from_palm,
+                spread_rad,
+                table_height_m: Some(self.table_height_m),
+            },
+            &self.physics,
+        )
+        .map_err(|source| ObserverError::Physics {
+            object: object.to_string(),
+            source,
+        })?;
+        let physics = verdict(GradeRule::Lift(lift.rule), blame);
+
+        let chosen = match self.mode {
+            ObserverMode::Physics => physics,
+            ObserverMode::Static => static_epsilon,
         };
-        let (grade, cause, what) = if let Some(collision) = &evaluation.outcome.collision_at_start {
-            (
-                Grade::Failure,
-                Some(blame()),
-                format!("open hand collides ({collision:?})"),
+        let reg = registration.map_or(String::new(), |e| {
+            format!(
+                "; best fit {:.1} mm, tilt {:.0} deg, yaw {:.0} deg off",
+                e.offset_m * 1e3,
+                e.tilt_deg,
+                e.yaw_deg
             )
-        } else if contacts < HOLDING_CONTACTS {
-            (
-                Grade::Failure,
-                Some(blame()),
-                format!("missed: {contacts} contact(s)"),
-            )
-        } else if evaluation.force_closure && epsilon >= SUCCESS_EPSILON {
-            (
-                Grade::Success,
-                None,
-                "force closure with margin".to_string(),
-            )
-        } else if evaluation.force_closure {
-            (
-                Grade::Partial,
-                Some(blame()),
-                format!("force closure below the {SUCCESS_EPSILON} margin"),
-            )
-        } else {
-            (
-                Grade::Partial,
-                Some(blame()),
-                "contacts without force closure".to_string(),
-            )
-        };
-        let reg = registration_error_m.map_or(String::new(), |e| {
-            format!(", best fit {:.1} mm off", e * 1e3)
         });
+        let note = format!(
+            "{} observer: physics {:?} ({}: rose {:.0} mm, slip {:.1} mm, turn {:.1} deg, touching {});              static {:?} ({}: epsilon {epsilon:.3}, {contacts} parts){reg}",
+            self.mode,
+            physics.grade,
+            physics.rule.phrase(),
+            lift.lift_height_m * 1e3,
+            lift.slip_m * 1e3,
+            lift.turn_rad.to_degrees(),
+            if lift.contacts.is_empty() {
+                "nothing".to_string()
+            } else {
+                lift.contacts.join(" ")
+            },
+            static_epsilon.grade,
+            static_epsilon.rule.phrase(),
+        );
         Ok(Observation {
-            grade,
-            cause,
+            mode: self.mode,
+            grade: chosen.grade,
+            cause: chosen.cause,
+            physics,
+            static_epsilon,
+            lift: Some(lift),
             epsilon,
             contacts,
-            registration_error_m,
-            note: format!(
-                "simulated observer: {what} (epsilon {epsilon:.3}, {contacts} contacts{reg})"
-            ),
+            registration_error_m: registration.map(|r| r.offset_m),
+            registration,
+            note,
         })
+    }
+
+    /// The observation of a grasp that was not executed: failure in both verdicts.
+    fn unexecuted(
+        &self,
+        rule: GradeRule,
+        blame: (FailureCause, CauseRule),
+        note: String,
+    ) -> Observation {
+        let v = verdict(rule, blame);
+        Observation {
+            mode: self.mode,
+            grade: v.grade,
+            cause: v.cause,
+            physics: v,
+            static_epsilon: v,
+            lift: None,
+            epsilon: 0.0,
+            contacts: 0,
+            registration_error_m: None,
+            registration: None,
+            note,
+        }
+    }
+}
+
+/// Hand parts (palm, F1, F2, F3) with at least one contact.
+pub fn contact_parts(
+    hand: &HandModel,
+    contacts: &[crate::quality::autograsp::LinkContact],
+) -> usize {
+    let palm = contacts.iter().any(|c| c.link == hand.palm.name);
+    let fingers = hand
+        .fingers
+        .iter()
+        .filter(|f| {
+            contacts
+                .iter()
+                .any(|c| c.link == f.proximal.name || c.link == f.distal.name)
+        })
+        .count();
+    usize::from(palm) + fingers
+}
+
+/// How often the two verdicts agree: counts of (physics grade, static grade) pairs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct Agreement {
+    /// `counts[p][s]`: trials graded `p` by physics and `s` by static epsilon, in
+    /// the order success, partial, failure.
+    pub counts: [[usize; 3]; 3],
+    /// Trials with both verdicts.
+    pub total: usize,
+    /// Trials where they agree.
+    pub agree: usize,
+}
+
+impl Agreement {
+    fn index(grade: Grade) -> usize {
+        match grade {
+            Grade::Success => 0,
+            Grade::Partial => 1,
+            Grade::Failure => 2,
+        }
+    }
+
+    /// Counts one trial.
+    pub fn add(&mut self, physics: Grade, statics: Grade) {
+        self.counts[Self::index(physics)][Self::index(statics)] += 1;
+        self.total += 1;
+        self.agree += usize::from(physics == statics);
+    }
+
+    /// The matrix as text: rows physics, columns static.
+    pub fn to_text(&self) -> String {
+        let mut text = format!(
+            "verdicts: physics (rows) against static epsilon (columns), {} of {} agree\n{:>18} {:>8} {:>8} {:>8}\n",
+            self.agree, self.total, "", "success", "partial", "failure"
+        );
+        for (name, row) in ["success", "partial", "failure"].iter().zip(&self.counts) {
+            text += &format!(
+                "{:>18} {:>8} {:>8} {:>8}\n",
+                format!("physics {name}"),
+                row[0],
+                row[1],
+                row[2]
+            );
+        }
+        text
     }
 }
 
@@ -272,8 +662,17 @@ mod tests {
         let seen = observer
             .grade("model", &db.meshes[model], &base_from_object, &executed)
             .unwrap();
-        assert_eq!(seen.grade, Grade::Success, "{seen:?}");
-        assert!(seen.epsilon >= SUCCESS_EPSILON && seen.cause.is_none());
+        assert_eq!(seen.mode, ObserverMode::Physics);
+        assert_eq!(seen.static_epsilon.grade, Grade::Success, "{seen:?}");
+        assert_eq!(seen.static_epsilon.rule, GradeRule::ForceClosure);
+        assert!(seen.epsilon >= SUCCESS_EPSILON && seen.static_epsilon.cause.is_none());
+        let lift = seen
+            .lift
+            .as_ref()
+            .expect("executed grasps get the lift test");
+        assert_eq!(seen.physics.rule, GradeRule::Lift(lift.rule));
+        assert_eq!(seen.grade, seen.physics.grade);
+        assert!(seen.note.contains("physics") && seen.note.contains("static"));
 
         // The same grasp 30 cm beside the object: no contact; the fit was 30 cm off.
         let beside = pose_from_params(&[0.0, 0.3, 0.0, 0.0, 0.0, 0.0]);
@@ -287,7 +686,17 @@ mod tests {
             .unwrap();
         assert_eq!(seen.grade, Grade::Failure);
         assert_eq!(seen.cause, Some(FailureCause::Registration));
+        assert_eq!(seen.physics.rule, GradeRule::Lift(LiftRule::NotLifted));
+        assert_eq!(seen.static_epsilon.rule, GradeRule::Missed);
+        assert_eq!(seen.physics.cause_rule, Some(CauseRule::RegistrationOffset));
         assert!(seen.note.contains("missed"), "{}", seen.note);
+        // The static grade of the same trial, from an observer in static mode.
+        let statics = observer
+            .clone()
+            .with_mode(ObserverMode::Static)
+            .grade("model", &db.meshes[model], &base_from_object, &missed)
+            .unwrap();
+        assert_eq!(statics.grade, statics.static_epsilon.grade);
 
         let stopped = observer
             .grade(
@@ -302,6 +711,53 @@ mod tests {
         assert_eq!(
             (stopped.grade, stopped.cause),
             (Grade::Failure, Some(FailureCause::Execution))
+        );
+    }
+
+    #[test]
+    fn agreement_counts_pairs() {
+        let mut a = Agreement::default();
+        a.add(Grade::Success, Grade::Failure);
+        a.add(Grade::Success, Grade::Success);
+        a.add(Grade::Partial, Grade::Failure);
+        assert_eq!((a.total, a.agree), (3, 1));
+        assert_eq!(a.counts[0], [1, 0, 1]);
+        assert_eq!(a.counts[1][2], 1);
+        assert!(a.to_text().contains("1 of 3 agree"), "{}", a.to_text());
+    }
+
+    #[test]
+    fn two_parts_without_force_closure_fail_and_turned_fits_are_blamed_on_registration() {
+        assert_eq!(
+            static_rule(false, 2, false, 0.0),
+            GradeRule::TwoPartsWithoutForceClosure
+        );
+        assert_eq!(
+            GradeRule::TwoPartsWithoutForceClosure.grade(),
+            Grade::Failure
+        );
+        assert_eq!(static_rule(false, 3, false, 0.0).grade(), Grade::Partial);
+        assert_eq!(static_rule(false, 1, false, 0.0), GradeRule::Missed);
+        assert_eq!(static_rule(false, 3, true, 0.02).grade(), Grade::Partial);
+        assert_eq!(static_rule(false, 2, true, 0.08).grade(), Grade::Success);
+        let object = pose_from_params(&[0.6, 0.1, 0.0, 0.0, 0.0, 0.3]);
+        let blame =
+            |fit: &Pose| RegistrationError::blame(Some(&RegistrationError::of(fit, &object)));
+        // In place: shape. Turned 40 deg about the vertical (a handle the wrong
+        // way): registration by yaw. Tipped 40 deg: by tilt. 3 cm off: by offset.
+        assert_eq!(blame(&object).1, CauseRule::Shape);
+        let turned = object * pose_from_params(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.7]);
+        assert_eq!(
+            blame(&turned),
+            (FailureCause::Registration, CauseRule::RegistrationYaw)
+        );
+        let tipped = object * pose_from_params(&[0.0, 0.0, 0.0, 0.7, 0.0, 0.0]);
+        assert_eq!(blame(&tipped).1, CauseRule::RegistrationTilt);
+        let shifted = pose_from_params(&[0.0, 0.03, 0.0, 0.0, 0.0, 0.0]) * object;
+        assert_eq!(blame(&shifted).1, CauseRule::RegistrationOffset);
+        assert_eq!(
+            RegistrationError::blame(None).0,
+            FailureCause::ShapeDissimilarity
         );
     }
 }
