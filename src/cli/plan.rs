@@ -471,7 +471,15 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
             None => (&outcome.plan.grasp, outcome.plan.kernel.name()),
         };
         let task = &outcome.plan.task;
-        write_plan(&cell, robot, grasp, task, method, args.from_joints.as_deref(), out)?;
+        write_plan(
+            &cell,
+            robot,
+            grasp,
+            task,
+            method,
+            args.from_joints.as_deref(),
+            out,
+        )?;
     }
     let report = PlanReport {
         fits: fits_path,
