@@ -25,6 +25,7 @@ use crate::cell::plan::{executable_joints, plan_trial, Databases};
 use crate::cell::setup::novel_object_in;
 use crate::cloud::segment::SegmentParams;
 use crate::config::CellConfig;
+use crate::quality::approach::{approach_to_contact, ApproachOptions};
 use crate::execute::{ExecutorConfig, SafetyCheck, SafetyLimits};
 use crate::geometry::{pose_error, Pose, PoseJson};
 use crate::ipc::{FitStatus, Fits, TrialRequest};
@@ -399,25 +400,29 @@ pub struct NovelCell<'a> {
     pub observer: &'a Observer,
 }
 
-/// The palm pose at which the hand closes, from the pose the arm reached.
-///
-/// APPROACH-TO-CONTACT SWITCH (issue 17 item 1): the one place where the hand's
-/// approach along its palm axis until first contact goes, once
-/// `quality::autograsp` has it; with `paper` the hand closes where the arm stands,
-/// as in the paper's experiments. Until then both settings close at `reached`.
+/// The palm pose at which the hand closes, from the pose the arm reached: with
+/// `approach` the executor's approach to contact ([`approach_to_contact`]: from the
+/// pre-grasp along the palm's axis through `reached`, up to the overtravel, stopping
+/// at first contact); without it (the paper's setting) the hand closes at `reached`.
+/// An open hand that already collides at the pre-grasp closes at `reached`, where the
+/// observer fails it as a start collision.
 pub fn executed_palm(
-    _hand: &HandModel,
-    _object: &GraspObject,
-    _base_from_object: &Pose,
+    hand: &HandModel,
+    object: &GraspObject,
+    base_from_object: &Pose,
     reached: &Pose,
-    _spread_rad: f64,
-    _paper: bool,
+    spread_rad: f64,
+    approach: Option<&ApproachOptions>,
 ) -> Pose {
-    *reached
+    let Some(options) = approach else {
+        return *reached;
+    };
+    let object_from_palm = base_from_object.inverse() * reached;
+    match approach_to_contact(hand, object, &object_from_palm, spread_rad, options) {
+        Ok(stop) if stop.start_collision.is_none() => base_from_object * stop.object_from_palm,
+        _ => *reached,
+    }
 }
-
-/// Whether the approach to contact of [`executed_palm`] is in effect.
-pub const APPROACH_TO_CONTACT: bool = false;
 
 /// Seeds of one object placement: placement, camera noise, registration, joints.
 fn unit_seeds(seed: u64, unit: u64) -> [u64; 4] {
@@ -514,6 +519,7 @@ pub fn run_novel(
         SafetyLimits::from_cell(cell.config, &cell.robot),
     );
     let motions = ExecutorConfig::from_cell(cell.config);
+    let approach = (!options.paper).then(|| ApproachOptions::from_cell(cell.config));
     let mut trials = Vec::new();
     for (o, object) in objects.iter().enumerate() {
         let category = &models[&object.category];
@@ -598,7 +604,7 @@ pub fn run_novel(
                                 &base_from_object,
                                 &reached,
                                 grasp.spread_rad,
-                                options.paper,
+                                approach.as_ref(),
                             );
                             (
                                 Attempt::Executed {
@@ -663,7 +669,7 @@ pub fn run_novel(
         lab: options.lab,
         hand_eye_error,
         paper: options.paper,
-        approach_to_contact: APPROACH_TO_CONTACT,
+        approach_to_contact: !options.paper,
         trials,
     })
 }
