@@ -31,8 +31,10 @@ fn a_campaign_trial_has_a_picture_and_trial_show_writes_png_and_a_valid_glb() {
     let run_dir = dir.join("run");
     let (ok, out, err) = cell(&[
         "campaign",
-        "--objects",
+        "--instances",
         "1",
+        "--task",
+        "top",
         "--placements",
         "1",
         "--methods",
