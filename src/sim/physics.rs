@@ -1047,7 +1047,14 @@ mod tests {
         let hand = hand();
         let (object, scene) = side_grasp();
         let inside = LiftScene {
-            base_from_palm: crate::geometry::pose_from_params(&[0.6, 0.0, 0.06, 0.0, 1.5708, 0.0]),
+            base_from_palm: crate::geometry::pose_from_params(&[
+                0.6,
+                0.0,
+                0.06,
+                0.0,
+                std::f64::consts::FRAC_PI_2,
+                0.0,
+            ]),
             ..scene
         };
         let out = lift_test(&hand, &object, &inside, &PhysicsOptions::default()).unwrap();
