@@ -105,17 +105,12 @@ fn run(args: Args) -> anyhow::Result<()> {
     }
     let mut sim = FriSimulator::new(config)?;
     if let (Some(scene), Some(path)) = (&args.scene, &args.config) {
-        use graspcell::sim::world::{ArmContact, WorldLink, WorldWatch};
+        use graspcell::sim::world::{ArmContact, WorldWatch};
         let cell = graspcell::config::CellConfig::load(path)?;
         let robot = std::sync::Arc::new(graspcell::robot::Robot::load(&cell)?);
         let hand = std::sync::Arc::new(graspcell::robot::hand::HandModel::load(&cell)?);
-        let dir = args
-            .state_dir
-            .clone()
-            .or_else(|| scene.parent().map(PathBuf::from))
-            .unwrap_or_default();
-        let link = WorldLink::files(&dir)?;
-        let world = WorldWatch::scene_file(scene.clone(), cell, hand, Duration::from_millis(50));
+        let (world, link, dir) =
+            WorldWatch::for_simulator(scene, args.state_dir.as_deref(), cell, hand)?;
         sim.set_external_force(Some(Box::new(ArmContact::new(robot, world, link))));
         tracing::info!(scene = %scene.display(), state = %dir.display(), "contact forces from the scene");
     }

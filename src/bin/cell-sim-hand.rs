@@ -53,12 +53,7 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .try_init();
+    graspcell::logging::init_logging();
     match run(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
@@ -89,16 +84,11 @@ fn run(args: Args) -> anyhow::Result<()> {
     config.boot = Duration::from_secs_f64(args.boot_s);
     let mut emulator = HandEmulator::new(config, Arc::new(SystemClock::new()))?;
     if let (Some(scene), Some(path)) = (&args.scene, &args.config) {
-        use graspcell::sim::world::{HandContact, WorldLink, WorldWatch};
+        use graspcell::sim::world::{HandContact, WorldWatch};
         let cell = graspcell::config::CellConfig::load(path)?;
         let hand = Arc::new(graspcell::robot::hand::HandModel::load(&cell)?);
-        let dir = args
-            .state_dir
-            .clone()
-            .or_else(|| scene.parent().map(PathBuf::from))
-            .unwrap_or_default();
-        let link = WorldLink::files(&dir)?;
-        let world = WorldWatch::scene_file(scene.clone(), cell, hand, Duration::from_millis(50));
+        let (world, link, _) =
+            WorldWatch::for_simulator(scene, args.state_dir.as_deref(), cell, hand)?;
         emulator = emulator.with_feel(Box::new(HandContact::new(world, link)));
     }
     let mut bus = open_bus_logged(&args.interface, args.candump.as_deref())?;

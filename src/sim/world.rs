@@ -506,6 +506,25 @@ impl WorldWatch {
         }
     }
 
+    /// What a simulator process (`cell-sim-arm`, `cell-sim-hand`) feels: scene file
+    /// `scene` watched every 50 ms, and the state shared with the other simulator in
+    /// `state_dir` (default: the scene's directory), which is also returned.
+    pub fn for_simulator(
+        scene: &Path,
+        state_dir: Option<&Path>,
+        config: CellConfig,
+        hand: Arc<HandModel>,
+    ) -> Result<(WorldWatch, WorldLink, PathBuf), WorldError> {
+        let dir = state_dir
+            .or_else(|| scene.parent())
+            .map(Path::to_path_buf)
+            .unwrap_or_default();
+        let link = WorldLink::files(&dir)?;
+        let watch =
+            WorldWatch::scene_file(scene.to_path_buf(), config, hand, Duration::from_millis(50));
+        Ok((watch, link, dir))
+    }
+
     /// The world of scene file `path`, reloaded (on a thread of its own, every
     /// `poll` at most) whenever the file's modification time changes; empty
     /// while there is no file. A file that fails to load is logged and the
