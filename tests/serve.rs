@@ -133,10 +133,17 @@ impl Drop for Running {
 /// Sends raw bytes, returns the status code and the body (the server closes or
 /// the read times out).
 fn raw_http(addr: SocketAddr, request: &[u8]) -> (u16, String) {
-    let mut stream = TcpStream::connect(addr).unwrap();
+    try_http(addr, request, Duration::from_secs(10)).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// [`raw_http`] that says what went wrong instead of panicking: a refused
+/// connection, or a peer that closed or timed out before a status line.
+fn try_http(addr: SocketAddr, request: &[u8], timeout: Duration) -> Result<(u16, String), String> {
+    let mut stream =
+        TcpStream::connect(addr).map_err(|e| format!("cannot connect to {addr}: {e}"))?;
     stream
-        .set_read_timeout(Some(Duration::from_secs(10)))
-        .unwrap();
+        .set_read_timeout(Some(timeout))
+        .map_err(|e| e.to_string())?;
     // A refused oversized body may be cut off: ignore write errors past the head.
     let _ = stream.write_all(request);
     let mut response = Vec::new();
@@ -169,12 +176,12 @@ fn raw_http(addr: SocketAddr, request: &[u8]) -> (u16, String) {
         .split_whitespace()
         .nth(1)
         .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("no HTTP status in {text:?}"));
+        .ok_or_else(|| format!("no HTTP status from {addr} in {text:?}"))?;
     let body = text
         .split_once("\r\n\r\n")
         .map(|(_, b)| b.to_string())
         .unwrap_or_default();
-    (status, body)
+    Ok((status, body))
 }
 
 fn post_form(addr: SocketAddr, body: &str, extra_headers: &str) -> (u16, String) {
@@ -358,8 +365,23 @@ fn free_port() -> u16 {
         .port()
 }
 
+/// How long one WebDriver command may take: starting Chromium on a loaded 2-core
+/// machine (the whole test suite runs beside it) takes many seconds.
+const WEBDRIVER_TIMEOUT: Duration = Duration::from_secs(90);
+
 /// One WebDriver command: JSON over HTTP/1.1 (the W3C WebDriver protocol).
 fn webdriver(base: &str, method: &str, path: &str, body: Option<&Value>) -> Value {
+    try_webdriver(base, method, path, body, WEBDRIVER_TIMEOUT).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// [`webdriver`] that returns what went wrong (transport, JSON or a WebDriver error).
+fn try_webdriver(
+    base: &str,
+    method: &str,
+    path: &str,
+    body: Option<&Value>,
+    timeout: Duration,
+) -> Result<Value, String> {
     let addr: SocketAddr = base.trim_start_matches("http://").parse().unwrap();
     let payload = body.map(|b| b.to_string()).unwrap_or_default();
     let request = format!(
@@ -367,11 +389,14 @@ fn webdriver(base: &str, method: &str, path: &str, body: Option<&Value>) -> Valu
          Content-Length: {}\r\nConnection: close\r\n\r\n{payload}",
         payload.len()
     );
-    let (status, text) = raw_http(addr, request.as_bytes());
+    let (status, text) = try_http(addr, request.as_bytes(), timeout)
+        .map_err(|e| format!("WebDriver {method} {path}: {e}"))?;
     let value: Value = serde_json::from_str(&text)
-        .unwrap_or_else(|e| panic!("WebDriver {method} {path}: {status}: {e}: {text}"));
-    assert!(status < 300, "WebDriver {method} {path}: {status}: {value}");
-    value["value"].clone()
+        .map_err(|e| format!("WebDriver {method} {path}: {status}: {e}: {text}"))?;
+    if status >= 300 {
+        return Err(format!("WebDriver {method} {path}: {status}: {value}"));
+    }
+    Ok(value["value"].clone())
 }
 
 impl Driver {
@@ -387,26 +412,33 @@ impl Driver {
             missing.join(", ")
         );
         let port = free_port();
-        let child = Command::new("/usr/bin/chromedriver")
+        let mut child = Command::new("/usr/bin/chromedriver")
             .arg(format!("--port={port}"))
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()
             .expect("chromedriver starts");
         let base = format!("http://127.0.0.1:{port}");
-        let deadline = Instant::now() + Duration::from_secs(30);
+        // Until chromedriver listens, a connection is refused, or accepted and closed
+        // with no answer while it starts: both mean "not yet", until the deadline.
+        let deadline = Instant::now() + Duration::from_secs(60);
         loop {
-            if TcpStream::connect(("127.0.0.1", port)).is_ok() {
-                let status = webdriver(&base, "GET", "/status", None);
-                if status["ready"] == json!(true) {
-                    break;
-                }
+            if let Ok(Some(exit)) = child.try_wait() {
+                panic!("chromedriver exited before it was ready ({exit}; port {port} taken?)");
             }
-            assert!(
-                Instant::now() < deadline,
-                "chromedriver did not come up on port {port}"
-            );
-            std::thread::sleep(Duration::from_millis(100));
+            let probe = try_webdriver(&base, "GET", "/status", None, Duration::from_secs(5));
+            match probe {
+                Ok(status) if status["ready"] == json!(true) => break,
+                Ok(status) => assert!(
+                    Instant::now() < deadline,
+                    "chromedriver on port {port} not ready: {status}"
+                ),
+                Err(e) => assert!(
+                    Instant::now() < deadline,
+                    "chromedriver did not come up on port {port}: {e}"
+                ),
+            }
+            std::thread::sleep(Duration::from_millis(200));
         }
         let profile = dir.join("chromium-profile");
         std::fs::create_dir_all(&profile).unwrap();

@@ -185,7 +185,8 @@ pub fn plan_trial(
 }
 
 /// `laplace-sim`: the Laplace grasp refined in the grasp simulator over every fitted
-/// model ([`crate::plan::refine::refine_in_sim`], default settings).
+/// model ([`crate::plan::refine::refine_over_db`]), approaching to contact as the
+/// executor does.
 #[allow(clippy::too_many_arguments)]
 fn refine_trial(
     config: &CellConfig,
@@ -197,41 +198,24 @@ fn refine_trial(
     options: &PlanOptions,
     start: PlannedGrasp,
 ) -> Result<PlannedGrasp, String> {
-    use crate::plan::refine::{refine_in_sim, SimModel, SimRefineOptions};
-    use crate::quality::autograsp::GraspObject;
+    use crate::plan::refine::{refine_over_db, SimRefineOptions};
     let hand = crate::robot::hand::HandModel::from_description(
         &robot.description,
         &config.robot.palm_link,
         &config.robot.urdf,
     )
     .map_err(|e| e.to_string())?;
-    let objects = fits
-        .iter()
-        .map(|f| {
-            let i = db.model_index(&f.name).ok_or_else(|| f.name.clone())?;
-            GraspObject::new(&db.meshes[i], &db.dir.join(&db.file.models[i].mesh))
-                .map(|o| o.with_table(db.file.table_height_m))
-                .map_err(|e| format!("model {}: {e}", f.name))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    let models = SimModel::of_fits(fits, &objects, &options.weights);
-    let objective = crate::plan::objective::Objective::new(
+    let refined = refine_over_db(
+        db,
         fits,
         grasps,
         task,
-        &options.kernel,
-        &options.weights,
-    )
-    .map_err(|e| e.to_string())?;
-    let refined = refine_in_sim(
-        &start,
+        options,
         &hand,
-        &models,
         Some(robot as &dyn Reachability),
         None,
-        options.pregrasp_offset_m,
-        &|p| objective.log_value_at(p),
-        &SimRefineOptions::default(),
+        &start,
+        &SimRefineOptions::for_cell(config),
     )
     .map_err(|e| e.to_string())?;
     Ok(refined.grasp)

@@ -929,14 +929,17 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
     );
     text += &format!("{} trials in {:.1} s\n", r.trials.len(), seconds);
     text += &format!(
-        "{:<12} {:<12} {:>6} {:>8} {:>8} {:>8} {:>6} {:>5} {:>7}  {}\n",
+        "{:<12} {:<12} {:>6} {:>8} {:>8} {:>8} {:>6} {:>6} {:>6} {:>5} {:>5} {:>7}  {}\n",
         "task",
         "method",
         "trials",
         "success",
         "partial",
         "failure",
+        "phys%",
+        "stat%",
         "FC%",
+        "agree",
         "coll",
         "eps",
         "failure causes"
@@ -944,20 +947,28 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
     for row in &r.rows {
         let causes: Vec<String> = row.causes.iter().map(|(c, n)| format!("{c} {n}")).collect();
         text += &format!(
-            "{:<12} {:<12} {:>6} {:>7.0}% {:>7.0}% {:>7.0}% {:>5.0}% {:>5} {:>7.4}  {}\n",
+            "{:<12} {:<12} {:>6} {:>7.0}% {:>7.0}% {:>7.0}% {:>5.0}% {:>5.0}% {:>5.0}% {:>5} {:>5} {:>7.4}  {}\n",
             row.task,
             row.method,
             row.trials,
             row.success_pct,
             row.partial_pct,
             row.failure_pct,
+            row.physics_success_pct,
+            row.static_success_pct,
             row.force_closure_pct,
+            row.verdicts.agree,
             row.collisions,
             row.mean_epsilon,
             causes.join(", ")
         );
     }
-    text += "(success / partial / failure: the simulated observer's grades; FC: force closure; coll: open hand colliding at the executed pose)\n";
+    let mut verdicts = crate::sim::observer::Agreement::default();
+    for t in &r.trials {
+        verdicts.add(t.physics_grade, t.static_grade);
+    }
+    text += &verdicts.to_text();
+    text += "(success / partial / failure: the observer's grades; phys% / stat%: successes by the rigid-body lift test and by static epsilon, agree: trials both grade alike; FC: force closure; coll: open hand colliding at the executed pose)\n";
     text
 }
 

@@ -13,14 +13,12 @@ use crate::geometry::parse_numbers;
 use crate::geometry::{params_from_pose, Pose};
 use crate::plan::category::example_grasps;
 use crate::plan::input::{fits_input, read_fits_input, read_grasps, FitsInput, Unregistered};
-use crate::plan::objective::Objective;
-use crate::plan::refine::{refine_in_sim, Refined, SimModel, SimRefineOptions};
+use crate::plan::refine::{refine_over_db, Refined, SimRefineOptions};
 use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
 use crate::plan::{
     plan, plan_with, FitWeight, Kernel, PaperProtocol, PlanMode, PlanOptions, PlanOutcome,
     PlannedGrasp, Reachability, SeenSurface, SeenSurfaceOptions,
 };
-use crate::quality::autograsp::GraspObject;
 use crate::register::{register_all, ModelSet, RegisterParams, RegistrationStatus};
 use crate::robot::hand::HandModel;
 use crate::robot::kinematics::ArmJoints;
@@ -237,9 +235,11 @@ struct PlanReport<'a> {
     outcome: PlanOutcome,
 }
 
-/// `laplace-sim`: `start` refined in the grasp simulator over the models of `fits`.
+/// `laplace-sim`: `start` refined in the grasp simulator over the models of `fits`,
+/// approaching to contact as `cell`'s executor does.
 #[allow(clippy::too_many_arguments)]
 pub fn refine(
+    cell: &CellConfig,
     hand: &HandModel,
     db: &CategoryDb,
     fits: &[crate::plan::ModelFit],
@@ -250,29 +250,9 @@ pub fn refine(
     seen: Option<&SeenSurface>,
     start: &PlannedGrasp,
 ) -> anyhow::Result<Refined> {
-    let objects = fits
-        .iter()
-        .map(|f| {
-            let i = db.model_index(&f.name).with_context(|| {
-                format!("fit {} names no model of {}", f.name, db.dir.display())
-            })?;
-            Ok(
-                GraspObject::new(&db.meshes[i], &db.dir.join(&db.file.models[i].mesh))?
-                    .with_table(db.file.table_height_m),
-            )
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let models = SimModel::of_fits(fits, &objects, &options.weights);
-    let objective = Objective::new(fits, grasps, task, &options.kernel, &options.weights)?;
-    Ok(refine_in_sim(
-        start,
-        hand,
-        &models,
-        reach,
-        seen,
-        options.pregrasp_offset_m,
-        &|p| objective.log_value_at(p),
-        &SimRefineOptions::default(),
+    let sim = SimRefineOptions::for_cell(cell);
+    Ok(refine_over_db(
+        db, fits, grasps, task, options, hand, reach, seen, start, &sim,
     )?)
 }
 
@@ -454,6 +434,7 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
         (false, _) => None,
         (true, None) => anyhow::bail!("--refine-sim needs --db (the models' meshes)"),
         (true, Some(db)) => Some(refine(
+            &cell,
             &hand,
             db,
             &fits,
@@ -740,6 +721,7 @@ fn sim_bench(
         plain.push(t);
         let start = Instant::now();
         let refined = refine(
+            cell,
             &hand,
             &db,
             &fits,

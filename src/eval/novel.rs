@@ -38,7 +38,7 @@ use crate::robot::hand::HandModel;
 use crate::robot::Robot;
 use crate::sim::camera::DepthCamera;
 use crate::sim::lab::{LabDraw, LabErrors};
-use crate::sim::observer::{Attempt, Observation, Observer};
+use crate::sim::observer::{Agreement, Attempt, Observation, Observer};
 use crate::sim::scene::{Scene, TableBox};
 use crate::trial::{FailureCause, Grade};
 use serde::Serialize;
@@ -180,10 +180,14 @@ pub struct NovelTrial {
     pub task: String,
     /// The method.
     pub method: String,
-    /// The observer's grade.
+    /// The observer's grade (the verdict of its mode, physics by default).
     pub grade: Grade,
     /// Its cause of a non-success.
     pub cause: Option<FailureCause>,
+    /// The rigid-body lift test's grade.
+    pub physics_grade: Grade,
+    /// The static (epsilon) grade.
+    pub static_grade: Grade,
     /// Ferrari–Canny epsilon of the executed grasp (0: none or not force closure).
     pub epsilon: f64,
     /// Whether the executed grasp is force closure (`epsilon > 0`).
@@ -232,6 +236,12 @@ pub struct NovelRow {
     pub mean_epsilon: f64,
     /// Non-successes by cause (`reachability`, `registration`, ...).
     pub causes: BTreeMap<String, usize>,
+    /// Successes by the physics verdict, in percent of trials.
+    pub physics_success_pct: f64,
+    /// Successes by the static (epsilon) verdict, in percent of trials.
+    pub static_success_pct: f64,
+    /// The two verdicts side by side (rows physics, columns static).
+    pub verdicts: Agreement,
 }
 
 impl NovelRow {
@@ -250,8 +260,11 @@ impl NovelRow {
             collisions: 0,
             mean_epsilon: 0.0,
             causes: BTreeMap::new(),
+            physics_success_pct: 0.0,
+            static_success_pct: 0.0,
+            verdicts: Agreement::default(),
         };
-        let (mut fc, mut eps) = (0usize, 0.0);
+        let (mut fc, mut eps, mut physics_ok, mut static_ok) = (0usize, 0.0, 0usize, 0usize);
         for t in trials {
             row.trials += 1;
             match t.grade {
@@ -265,6 +278,9 @@ impl NovelRow {
             fc += usize::from(t.force_closure);
             row.collisions += usize::from(t.collision);
             eps += t.epsilon;
+            row.verdicts.add(t.physics_grade, t.static_grade);
+            physics_ok += usize::from(t.physics_grade == Grade::Success);
+            static_ok += usize::from(t.static_grade == Grade::Success);
         }
         if row.trials > 0 {
             let n = row.trials as f64;
@@ -274,6 +290,8 @@ impl NovelRow {
             row.failure_pct = pct(row.failure);
             row.force_closure_pct = pct(fc);
             row.mean_epsilon = eps / n;
+            row.physics_success_pct = pct(physics_ok);
+            row.static_success_pct = pct(static_ok);
         }
         row
     }
@@ -636,6 +654,8 @@ pub fn run_novel(
                         method: method.clone(),
                         grade: seen.grade,
                         cause: seen.cause,
+                        physics_grade: seen.physics.grade,
+                        static_grade: seen.static_epsilon.grade,
                         epsilon: seen.epsilon,
                         force_closure: seen.epsilon > 0.0,
                         collision,
@@ -700,6 +720,12 @@ mod tests {
             method: method.into(),
             grade,
             cause: (grade != Grade::Success).then_some(FailureCause::ShapeDissimilarity),
+            physics_grade: grade,
+            static_grade: if eps > 0.05 {
+                Grade::Success
+            } else {
+                Grade::Failure
+            },
             epsilon: eps,
             force_closure: eps > 0.0,
             collision,
@@ -740,5 +766,13 @@ mod tests {
         assert_eq!((all.task.as_str(), all.trials, all.success), ("all", 4, 2));
         assert_eq!(rows[5].collisions, 1);
         assert_eq!(rows[3].trials, 0, "best single had no side trial");
+        // Both verdicts: physics is the grade here; static succeeds above 0.05.
+        assert!((top.physics_success_pct - 100.0 / 3.0).abs() < 1e-9);
+        assert!((top.static_success_pct - 100.0 / 3.0).abs() < 1e-9);
+        assert_eq!((top.verdicts.total, top.verdicts.agree), (3, 2));
+        assert_eq!(
+            top.verdicts.counts[1][2], 1,
+            "physics partial, static failure"
+        );
     }
 }

@@ -12,14 +12,19 @@
 //! worse than the start. The step halves when no move along any axis helps; the
 //! search stops at the evaluation budget or the smallest step.
 //!
-//! How one model's grasp is simulated is [`simulated_epsilon`], the one place to
-//! switch to approach-to-contact.
+//! How one model's grasp is simulated is [`simulated_epsilon`]: with
+//! [`SimRefineOptions::approach`] (the default, and the cell's) the open hand
+//! approaches to contact from the pre-grasp first, exactly as the executor and the
+//! observer's trials do ([`crate::quality::approach`]), so the refinement optimises
+//! the grasp that will be executed; without it the hand closes at the pose.
 
 use super::planner::pregrasp_pose;
 use super::reach::Reachability;
 use super::seen::SeenSurface;
 use super::{ModelFit, PlanError, PlannedGrasp};
+use crate::category::CategoryDb;
 use crate::geometry::Pose;
+use crate::quality::approach::{approach_to_contact, ApproachOptions};
 use crate::quality::autograsp::{evaluate_grasp, AutoGraspOptions, GraspObject};
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
@@ -41,6 +46,9 @@ pub struct SimRefineOptions {
     pub min_step_fraction: f64,
     /// Most candidate grasps evaluated (each simulates every model).
     pub max_evaluations: usize,
+    /// Approach to contact before closing (the executor's rule and parameters);
+    /// `None` closes at the pose (the paper's setting).
+    pub approach: Option<ApproachOptions>,
     /// Auto-grasp settings.
     #[serde(skip)]
     pub autograsp: AutoGraspOptions,
@@ -50,7 +58,8 @@ pub struct SimRefineOptions {
 }
 
 impl Default for SimRefineOptions {
-    /// 1 cm, 0.2 rad and 0.2 rad first steps, down to 1/4 of them, 24 evaluations.
+    /// 1 cm, 0.2 rad and 0.2 rad first steps, down to 1/4 of them, 24 evaluations,
+    /// approach to contact with the shipped configuration's distances.
     fn default() -> Self {
         SimRefineOptions {
             step_m: 0.01,
@@ -58,8 +67,19 @@ impl Default for SimRefineOptions {
             step_spread_rad: 0.2,
             min_step_fraction: 0.25,
             max_evaluations: 24,
+            approach: Some(ApproachOptions::default()),
             autograsp: AutoGraspOptions::default(),
             quality: QualityParams::default(),
+        }
+    }
+}
+
+impl SimRefineOptions {
+    /// The defaults with the cell's approach to contact ([`ApproachOptions::from_cell`]).
+    pub fn for_cell(config: &crate::config::CellConfig) -> SimRefineOptions {
+        SimRefineOptions {
+            approach: Some(ApproachOptions::from_cell(config)),
+            ..SimRefineOptions::default()
         }
     }
 }
@@ -114,9 +134,10 @@ pub struct Refined {
     pub infeasible: usize,
 }
 
-/// Epsilon of the grasp at `object_from_palm` on one model: the auto-grasp from the
-/// pose (0 without force closure or when the open hand starts inside the object).
-/// The one place that says how a grasp is simulated here.
+/// Epsilon of the grasp planned at `object_from_palm` on one model: the auto-grasp
+/// where the approach to contact stops (or at the pose without one); 0 without
+/// force closure or when the open hand starts inside the object. The one place that
+/// says how a grasp is simulated here.
 pub fn simulated_epsilon(
     hand: &HandModel,
     object: &GraspObject,
@@ -124,10 +145,19 @@ pub fn simulated_epsilon(
     spread_rad: f64,
     options: &SimRefineOptions,
 ) -> f64 {
+    let closes_at = match &options.approach {
+        None => *object_from_palm,
+        Some(approach) => {
+            match approach_to_contact(hand, object, object_from_palm, spread_rad, approach) {
+                Ok(stop) if stop.start_collision.is_none() => stop.object_from_palm,
+                _ => return 0.0,
+            }
+        }
+    };
     match evaluate_grasp(
         hand,
         object,
-        object_from_palm,
+        &closes_at,
         spread_rad,
         &options.autograsp,
         &options.quality,
@@ -258,6 +288,55 @@ pub fn refine_in_sim(
         evaluations,
         infeasible,
     })
+}
+
+/// `laplace-sim` over a category database: `start` refined on the meshes of the
+/// models of `fits` (each with the database's table), weighted by `options`'
+/// fit weights; the report's objective is eq. 2 of `grasps` for `task`.
+#[allow(clippy::too_many_arguments)]
+pub fn refine_over_db(
+    db: &CategoryDb,
+    fits: &[ModelFit],
+    grasps: &[super::ExampleGrasp],
+    task: &str,
+    options: &super::PlanOptions,
+    hand: &HandModel,
+    reach: Option<&dyn Reachability>,
+    seen: Option<&SeenSurface>,
+    start: &PlannedGrasp,
+    sim: &SimRefineOptions,
+) -> Result<Refined, PlanError> {
+    let objects = fits
+        .iter()
+        .map(|f| {
+            let i = db
+                .model_index(&f.name)
+                .ok_or_else(|| PlanError::UnknownModel {
+                    model: f.name.clone(),
+                    database: db.dir.clone(),
+                })?;
+            let path = db.dir.join(&db.file.models[i].mesh);
+            GraspObject::new(&db.meshes[i], &path)
+                .map(|o| o.with_table(db.file.table_height_m))
+                .map_err(|e| PlanError::Parse {
+                    path,
+                    message: e.to_string(),
+                })
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let models = SimModel::of_fits(fits, &objects, &options.weights);
+    let objective =
+        super::objective::Objective::new(fits, grasps, task, &options.kernel, &options.weights)?;
+    refine_in_sim(
+        start,
+        hand,
+        &models,
+        reach,
+        seen,
+        options.pregrasp_offset_m,
+        &|p| objective.log_value_at(p),
+        sim,
+    )
 }
 
 /// The planned grasp at `pose` when it is feasible (reachable with its pre-grasp,
