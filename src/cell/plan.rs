@@ -215,6 +215,7 @@ fn refine_trial(
         Some(robot as &dyn Reachability),
         None,
         &start,
+        Some(config.table.height_m),
         &SimRefineOptions::for_cell(config),
     )
     .map_err(|e| e.to_string())?;

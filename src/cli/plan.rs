@@ -251,8 +251,9 @@ pub fn refine(
     start: &PlannedGrasp,
 ) -> anyhow::Result<Refined> {
     let sim = SimRefineOptions::for_cell(cell);
+    let table = Some(cell.table.height_m);
     Ok(refine_over_db(
-        db, fits, grasps, task, options, hand, reach, seen, start, &sim,
+        db, fits, grasps, task, options, hand, reach, seen, start, table, &sim,
     )?)
 }
 

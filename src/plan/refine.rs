@@ -1,7 +1,12 @@
 //! `laplace-sim`, beyond the paper (issue 17): the Laplace optimum refined in the
 //! grasp simulator over every registered model.
 //!
-//! From the start grasp (the paper's Laplace optimum), a compass search over the
+//! From the start grasp (the paper's Laplace optimum), a depth scan and then a
+//! compass search. The depth scan tries the palm moved along its approach axis by
+//! whole steps up to [`SimRefineOptions::depth_scan_m`] either way: where the hand
+//! closes on an object lower, higher, wider or narrower than the plan assumed is
+//! decided by how deep the approach goes, a move too long for the compass search's
+//! budget. The compass search then runs over the
 //! palm's offset along its own x, y, z (m), its roll about the approach axis (rad)
 //! and the hand's spread (rad) maximises the **fit-weighted mean simulated epsilon**
 //! `sum_i phi_i eps_i(X) / sum_i phi_i`, where `eps_i` is the auto-grasp's
@@ -44,8 +49,12 @@ pub struct SimRefineOptions {
     pub step_spread_rad: f64,
     /// Steps are halved down to this fraction of the first.
     pub min_step_fraction: f64,
-    /// Most candidate grasps evaluated (each simulates every model).
+    /// Most candidate grasps evaluated (each simulates every model), the depth
+    /// scan's included.
     pub max_evaluations: usize,
+    /// How far along the approach axis the depth scan goes either way (m), in
+    /// steps of `step_m`; 0 skips it.
+    pub depth_scan_m: f64,
     /// Approach to contact before closing (the executor's rule and parameters);
     /// `None` closes at the pose (the paper's setting).
     pub approach: Option<ApproachOptions>,
@@ -58,15 +67,17 @@ pub struct SimRefineOptions {
 }
 
 impl Default for SimRefineOptions {
-    /// 1 cm, 0.2 rad and 0.2 rad first steps, down to 1/4 of them, 24 evaluations,
-    /// approach to contact with the shipped configuration's distances.
+    /// A depth scan of 5 cm either way, then 1 cm, 0.2 rad and 0.2 rad first steps,
+    /// down to 1/4 of them; 34 evaluations in all; approach to contact with the
+    /// shipped configuration's distances.
     fn default() -> Self {
         SimRefineOptions {
             step_m: 0.01,
             step_roll_rad: 0.2,
             step_spread_rad: 0.2,
             min_step_fraction: 0.25,
-            max_evaluations: 24,
+            max_evaluations: 34,
+            depth_scan_m: 0.05,
             approach: Some(ApproachOptions::default()),
             autograsp: AutoGraspOptions::default(),
             quality: QualityParams::default(),
@@ -229,6 +240,7 @@ pub fn refine_in_sim(
     ] {
         super::objective::check_value(what, v, true)?;
     }
+    super::objective::check_value("sim refine depth_scan_m", options.depth_scan_m, false)?;
     let (lo, hi) = hand.spread_limits_rad;
     let start_eps = mean_epsilon(hand, models, &start.pose, start.spread_rad, options);
     let mut best = (start.clone(), start_eps);
@@ -240,8 +252,43 @@ pub fn refine_in_sim(
         options.step_roll_rad,
         options.step_spread_rad,
     ];
-    let mut scale = 1.0;
     let (mut evaluations, mut infeasible) = (0, 0);
+    // The depth scan: every whole step along the approach axis, best first.
+    let depth_steps = (options.depth_scan_m / options.step_m).round() as i32;
+    let mut scanned: Vec<([f64; 5], f64)> = (-depth_steps..=depth_steps)
+        .filter(|&k| k != 0)
+        .take(options.max_evaluations)
+        .map(|k| {
+            let y = [0.0, 0.0, f64::from(k) * options.step_m, 0.0, 0.0];
+            let (pose, spread) = moved(&start.pose, start.spread_rad, &y);
+            (y, mean_epsilon(hand, models, &pose, spread, options))
+        })
+        .collect();
+    evaluations += scanned.len();
+    scanned.sort_by(|a, b| b.1.total_cmp(&a.1));
+    for (y, eps) in scanned {
+        if eps <= best.1 + 1e-12 {
+            break;
+        }
+        let (pose, spread) = moved(&start.pose, start.spread_rad, &y);
+        match feasible(
+            &best.0,
+            pose,
+            spread,
+            reach,
+            seen,
+            pregrasp_offset_m,
+            log_objective,
+        ) {
+            Some(grasp) => {
+                best = (grasp, eps);
+                x = y;
+                break;
+            }
+            None => infeasible += 1,
+        }
+    }
+    let mut scale = 1.0;
     'search: while scale >= options.min_step_fraction {
         let mut improved = false;
         for d in 0..5 {
@@ -291,8 +338,12 @@ pub fn refine_in_sim(
 }
 
 /// `laplace-sim` over a category database: `start` refined on the meshes of the
-/// models of `fits` (each with the database's table), weighted by `options`'
-/// fit weights; the report's objective is eq. 2 of `grasps` for `task`.
+/// models of `fits`, weighted by `options`' fit weights; the report's objective is
+/// eq. 2 of `grasps` for `task`. `table_height_m` is the cell's table (base frame):
+/// each model meets it where its fit puts it (the fit taken as upright), not at its
+/// own base, so a model registered higher or lower than its training stance still
+/// has the table where the real object stands; `None` keeps the database's table
+/// in each model's frame.
 #[allow(clippy::too_many_arguments)]
 pub fn refine_over_db(
     db: &CategoryDb,
@@ -304,6 +355,7 @@ pub fn refine_over_db(
     reach: Option<&dyn Reachability>,
     seen: Option<&SeenSurface>,
     start: &PlannedGrasp,
+    table_height_m: Option<f64>,
     sim: &SimRefineOptions,
 ) -> Result<Refined, PlanError> {
     let objects = fits
@@ -316,8 +368,12 @@ pub fn refine_over_db(
                     database: db.dir.clone(),
                 })?;
             let path = db.dir.join(&db.file.models[i].mesh);
+            let table = match table_height_m {
+                Some(h) => Some(h - f.base_from_model.translation.vector.z),
+                None => db.file.table_height_m,
+            };
             GraspObject::new(&db.meshes[i], &path)
-                .map(|o| o.with_table(db.file.table_height_m))
+                .map(|o| o.with_table(table))
                 .map_err(|e| PlanError::Parse {
                     path,
                     message: e.to_string(),
