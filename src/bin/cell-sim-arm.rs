@@ -110,8 +110,14 @@ fn run(args: Args) -> anyhow::Result<()> {
         let robot = std::sync::Arc::new(graspcell::robot::Robot::load(&cell)?);
         let hand = std::sync::Arc::new(graspcell::robot::hand::HandModel::load(&cell)?);
         let (world, link, dir) =
-            WorldWatch::for_simulator(scene, args.state_dir.as_deref(), cell, hand)?;
-        sim.set_external_force(Some(Box::new(ArmContact::new(robot, world, link))));
+            WorldWatch::for_simulator(scene, args.state_dir.as_deref(), cell, hand, None)?;
+        // The world's contact queries run beside the FRI cycle, never in it.
+        let contact = ArmContact::new(robot, world, link);
+        let force = graspcell::sim::fri::BackgroundForce::new(
+            Box::new(contact),
+            std::time::Duration::from_millis(1),
+        )?;
+        sim.set_external_force(Some(Box::new(force)));
         tracing::info!(scene = %scene.display(), state = %dir.display(), "contact forces from the scene");
     }
     let sim = Mutex::new(sim);

@@ -87,8 +87,10 @@ fn run(args: Args) -> anyhow::Result<()> {
         use graspcell::sim::world::{HandContact, WorldWatch};
         let cell = graspcell::config::CellConfig::load(path)?;
         let hand = Arc::new(graspcell::robot::hand::HandModel::load(&cell)?);
+        // Whether the object comes up with the hand is the physics lift test's.
+        let physics = Some(graspcell::sim::physics::PhysicsOptions::default());
         let (world, link, _) =
-            WorldWatch::for_simulator(scene, args.state_dir.as_deref(), cell, hand)?;
+            WorldWatch::for_simulator(scene, args.state_dir.as_deref(), cell, hand, physics)?;
         emulator = emulator.with_feel(Box::new(HandContact::new(world, link)));
     }
     let mut bus = open_bus_logged(&args.interface, args.candump.as_deref())?;

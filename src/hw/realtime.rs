@@ -42,6 +42,28 @@ pub fn current_realtime_priority() -> Option<i32> {
         .then_some(param.sched_priority)
 }
 
+/// Lowers the calling thread to the lowest ordinary priority (`SCHED_OTHER`, nice
+/// 19; a real-time policy inherited from its parent is dropped), for background
+/// work beside a device's cycle (a simulator's physics); a failure only leaves it
+/// where it was.
+pub fn lower_thread_priority() {
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: pthread_self() is the calling thread's valid handle and `param`
+    // outlives the call; gettid has no preconditions, and setpriority on the
+    // calling thread's own id only changes its nice value.
+    let rc = unsafe {
+        libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_OTHER, &param);
+        let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+        libc::setpriority(libc::PRIO_PROCESS, tid, 19)
+    };
+    if rc != 0 {
+        tracing::debug!(
+            "cannot lower a background thread's priority: {}",
+            std::io::Error::last_os_error()
+        );
+    }
+}
+
 /// Asks for [`DEVICE_CYCLE_PRIORITY`] for thread `what` ([`request_priority`]).
 pub fn request_device_cycle_priority(what: &str) {
     request_priority(what, DEVICE_CYCLE_PRIORITY);

@@ -38,7 +38,9 @@
 use crate::config::CellConfig;
 use crate::geometry::{tilt_and_yaw_deg, Pose};
 use crate::mesh::TriMesh;
-use crate::quality::autograsp::{evaluate_grasp, AutoGraspOptions, GraspObject, GraspSimError};
+use crate::quality::autograsp::{
+    evaluate_grasp, retreat_until_clear, AutoGraspOptions, GraspObject, GraspSimError,
+};
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
 use crate::robot::RobotError;
@@ -340,6 +342,11 @@ fn mesh_key(object: &str, mesh: &TriMesh) -> u64 {
     h.finish()
 }
 
+/// How far into the object a palm may stand and still count as touching it (m):
+/// what a guarded approach's stop leaves (a few tenths of a millimetre at the
+/// contact threshold, more while braking).
+pub const PRESSED_M: f64 = 0.003;
+
 /// The simulated observer of a cell.
 #[derive(Debug, Clone)]
 pub struct Observer {
@@ -454,7 +461,15 @@ impl Observer {
         let grasp_object = GraspObject::new(mesh, Path::new(object))
             .map_err(simulation)?
             .with_table(Some(table_in_object));
-        let object_from_palm = base_from_object.inverse() * base_from_palm;
+        // A hand stopped by its guarded approach presses into the surface it
+        // touched (the force threshold over the contact stiffness, and the
+        // braking): it closes from where it touched, not from inside. Deeper is a
+        // start collision.
+        let pressed = base_from_object.inverse() * base_from_palm;
+        let object_from_palm =
+            retreat_until_clear(&self.hand, &grasp_object, &pressed, spread_rad, PRESSED_M)
+                .unwrap_or(pressed);
+        let base_from_palm = &(base_from_object * object_from_palm);
         let evaluation = evaluate_grasp(
             &self.hand,
             &grasp_object,

@@ -14,8 +14,12 @@
 //!   - [`SimWorld::closing`]: where each finger stops when the hand closes at a
 //!     palm pose: the grasp simulator's auto-grasp ([`close_hand`]) on the object
 //!     nearest the palm, with the table. A finger that closes on air runs to its
-//!     limit (`None`). Whether the grasp is force closure decides whether the
-//!     object goes with the hand when the arm lifts.
+//!     limit (`None`). Whether the object goes with the hand when the arm lifts
+//!     is the physics observer's lift test at that palm pose
+//!     ([`SimWorld::lift_holds`], on a thread of its own, for a world prepared
+//!     [`SimWorld::with_physics`], as `cell-sim-hand`'s is): lifted and held or
+//!     slipped, it comes up; not lifted, dropped or pushed away, it stays. A world
+//!     without physics keeps the static rule (force closure holds).
 //! - [`WorldLink`]: the two simulators' small shared state. The arm simulator
 //!   writes the palm pose it measures (every cycle); the hand emulator writes the
 //!   hand's joints and whether its fingers hold the object. In one process the
@@ -40,6 +44,7 @@ use crate::quality::autograsp::{
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
 use crate::robot::{HandPose, Robot};
+use crate::sim::physics::{lift_test, LiftRule, LiftScene, PhysicsObject, PhysicsOptions};
 use crate::sim::scene::{load_scene, Scene, SceneError, TableBox};
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
 use parry3d_f64::query::{DefaultQueryDispatcher, QueryDispatcher};
@@ -61,6 +66,14 @@ pub enum WorldError {
         name: String,
         /// Why.
         source: GraspSimError,
+    },
+    /// An object cannot be prepared for the physics lift test.
+    #[error("scene object {name}: {source}")]
+    Physics {
+        /// The object's name.
+        name: String,
+        /// Why.
+        source: crate::sim::physics::PhysicsError,
     },
     /// The stiffness is not a positive finite number.
     #[error("contact stiffness {value} N/m must be finite and > 0")]
@@ -84,6 +97,10 @@ struct WorldObject {
     name: String,
     base_from_object: Pose,
     object: GraspObject,
+    /// Its mesh (object frame).
+    mesh: Arc<crate::mesh::TriMesh>,
+    /// The object for the lift test ([`SimWorld::with_physics`]).
+    physics: Option<Arc<PhysicsObject>>,
 }
 
 /// The objects and the table the simulated devices feel; see the module doc.
@@ -93,6 +110,8 @@ pub struct SimWorld {
     objects: Vec<WorldObject>,
     table: Option<TableBox>,
     stiffness_n_per_m: f64,
+    /// The lift test's settings, when the objects are prepared for it.
+    physics: Option<PhysicsOptions>,
 }
 
 /// Where the fingers stop when the hand closes in the world.
@@ -105,6 +124,9 @@ pub struct Closing {
     pub force_closure: bool,
     /// The object closed on, if any.
     pub object: Option<String>,
+    /// Where the palm closed (base frame): the palm backed off along its axis until
+    /// the open hand is clear, when it was pressed into the object.
+    pub base_from_palm: Pose,
 }
 
 impl SimWorld {
@@ -142,6 +164,8 @@ impl SimWorld {
                     name: o.name.clone(),
                     base_from_object: o.base_from_object,
                     object: object.with_table(table_height_m),
+                    mesh: Arc::new(o.mesh.clone()),
+                    physics: None,
                 })
             })
             .collect::<Result<_, WorldError>>()?;
@@ -150,6 +174,7 @@ impl SimWorld {
             objects,
             table: scene.table,
             stiffness_n_per_m,
+            physics: None,
         })
     }
 
@@ -166,6 +191,58 @@ impl SimWorld {
             hand,
             config.approach.sim_contact_stiffness_n_per_m,
         )
+    }
+
+    /// The same world with every object prepared for the physics lift test
+    /// (its convex decomposition, the expensive part: build it off any device's
+    /// cycle, as [`WorldWatch`] does).
+    pub fn with_physics(mut self, options: PhysicsOptions) -> Result<SimWorld, WorldError> {
+        for o in &mut self.objects {
+            let body =
+                PhysicsObject::new(&o.mesh, Path::new(&o.name), &options).map_err(|source| {
+                    WorldError::Physics {
+                        name: o.name.clone(),
+                        source,
+                    }
+                })?;
+            o.physics = Some(Arc::new(body));
+        }
+        self.physics = Some(options);
+        Ok(self)
+    }
+
+    /// Whether the object nearest the palm comes up when the hand closes at
+    /// `base_from_palm` with `spread_rad` and the arm lifts: the physics lift test
+    /// lifts it (held, or slipped within the hand). `None` when the world has no
+    /// physics ([`SimWorld::with_physics`]) or no object.
+    pub fn lift_holds(&self, base_from_palm: &Pose, spread_rad: f64) -> Option<bool> {
+        let options = self.physics.as_ref()?;
+        let o = self.nearest(base_from_palm)?;
+        let body = o.physics.as_ref()?;
+        let (lo, hi) = self.hand.spread_limits_rad;
+        let scene = LiftScene {
+            base_from_object: o.base_from_object,
+            base_from_palm: *base_from_palm,
+            spread_rad: spread_rad.clamp(lo, hi),
+            table_height_m: self.table.map(|t| t.height_m),
+        };
+        match lift_test(&self.hand, body, &scene, options) {
+            Ok(lift) => Some(matches!(lift.rule, LiftRule::Held | LiftRule::Slipped)),
+            Err(e) => {
+                tracing::warn!("lift test of {}: {e}", o.name);
+                None
+            }
+        }
+    }
+
+    /// The object whose origin is nearest the palm.
+    fn nearest(&self, base_from_palm: &Pose) -> Option<&WorldObject> {
+        self.objects.iter().min_by(|a, b| {
+            let d = |o: &WorldObject| {
+                (o.base_from_object.translation.vector - base_from_palm.translation.vector).norm()
+            };
+            d(a).total_cmp(&d(b))
+        })
     }
 
     /// The hand model.
@@ -243,16 +320,12 @@ impl SimWorld {
         let hand = &self.hand;
         let (lo, hi) = hand.spread_limits_rad;
         let spread = spread_rad.clamp(lo, hi);
-        let nearest = self.objects.iter().min_by(|a, b| {
-            let d = |o: &WorldObject| {
-                (o.base_from_object.translation.vector - base_from_palm.translation.vector).norm()
-            };
-            d(a).total_cmp(&d(b))
-        });
+        let nearest = self.nearest(base_from_palm);
         let free = Closing {
             stall_rad: [None; 3],
             force_closure: false,
             object: None,
+            base_from_palm: *base_from_palm,
         };
         let Some(o) = nearest else {
             return free;
@@ -264,6 +337,7 @@ impl SimWorld {
                 stall_rad: hand.fingers.each_ref().map(|f| Some(f.flex_limits_rad.0)),
                 force_closure: false,
                 object: Some(o.name.clone()),
+                base_from_palm: *base_from_palm,
             };
         };
         let options = AutoGraspOptions::default();
@@ -286,6 +360,7 @@ impl SimWorld {
             stall_rad,
             force_closure: e.force_closure,
             object: Some(o.name.clone()),
+            base_from_palm: o.base_from_object * pose,
         }
     }
 
@@ -296,12 +371,7 @@ impl SimWorld {
         base_from_palm: &Pose,
         spread_rad: f64,
     ) -> Option<crate::quality::autograsp::GraspOutcome> {
-        let o = self.objects.iter().min_by(|a, b| {
-            let d = |o: &WorldObject| {
-                (o.base_from_object.translation.vector - base_from_palm.translation.vector).norm()
-            };
-            d(a).total_cmp(&d(b))
-        })?;
+        let o = self.nearest(base_from_palm)?;
         let pose = o.base_from_object.inverse() * base_from_palm;
         close_hand(
             &self.hand,
@@ -507,32 +577,42 @@ impl WorldWatch {
     }
 
     /// What a simulator process (`cell-sim-arm`, `cell-sim-hand`) feels: scene file
-    /// `scene` watched every 50 ms, and the state shared with the other simulator in
-    /// `state_dir` (default: the scene's directory), which is also returned.
+    /// `scene` watched every 50 ms (its objects prepared for the lift test with
+    /// `physics`), and the state shared with the other simulator in `state_dir`
+    /// (default: the scene's directory), which is also returned.
     pub fn for_simulator(
         scene: &Path,
         state_dir: Option<&Path>,
         config: CellConfig,
         hand: Arc<HandModel>,
+        physics: Option<PhysicsOptions>,
     ) -> Result<(WorldWatch, WorldLink, PathBuf), WorldError> {
         let dir = state_dir
             .or_else(|| scene.parent())
             .map(Path::to_path_buf)
             .unwrap_or_default();
         let link = WorldLink::files(&dir)?;
-        let watch =
-            WorldWatch::scene_file(scene.to_path_buf(), config, hand, Duration::from_millis(50));
+        let watch = WorldWatch::scene_file(
+            scene.to_path_buf(),
+            config,
+            hand,
+            physics,
+            Duration::from_millis(50),
+        );
         Ok((watch, link, dir))
     }
 
     /// The world of scene file `path`, reloaded (on a thread of its own, every
     /// `poll` at most) whenever the file's modification time changes; empty
     /// while there is no file. A file that fails to load is logged and the
-    /// world emptied (the devices feel nothing rather than a stale object).
+    /// world emptied (the devices feel nothing rather than a stale object). With
+    /// `physics` each loaded world is prepared for the lift test
+    /// ([`SimWorld::with_physics`]) before it replaces the last one.
     pub fn scene_file(
         path: PathBuf,
         config: CellConfig,
         hand: Arc<HandModel>,
+        physics: Option<PhysicsOptions>,
         poll: Duration,
     ) -> WorldWatch {
         let watch = WorldWatch::fixed(None);
@@ -540,6 +620,8 @@ impl WorldWatch {
         let spawned = std::thread::Builder::new()
             .name("world-watch".into())
             .spawn(move || {
+                // Loading (a convex decomposition with physics) is background work.
+                crate::hw::realtime::lower_thread_priority();
                 let mut seen: Option<SystemTime> = None;
                 while !stop.load(Ordering::Relaxed) {
                     let modified = std::fs::metadata(&path).and_then(|m| m.modified()).ok();
@@ -547,7 +629,11 @@ impl WorldWatch {
                         seen = modified;
                         let world = match modified {
                             None => None,
-                            Some(_) => match SimWorld::load(&path, &config, Arc::clone(&hand)) {
+                            Some(_) => match SimWorld::load(&path, &config, Arc::clone(&hand))
+                                .and_then(|w| match physics {
+                                    Some(options) => w.with_physics(options),
+                                    None => Ok(w),
+                                }) {
                                 Ok(w) => {
                                     tracing::info!(scene = %path.display(), objects = w.objects.len(), "simulated world loaded");
                                     Some(Arc::new(w))
@@ -615,19 +701,52 @@ impl crate::sim::fri::ExternalForce for ArmContact {
 }
 
 /// The hand emulator's side: stall angles from the world at the palm pose the
-/// arm publishes; an object not held in force closure stays behind when the
-/// palm moves more than [`HandContact::DROP_DISTANCE_M`] from where the hand
-/// closed ([`crate::sim::puck::Feel`]).
+/// arm publishes; an object the hand does not hold ([`SimWorld::lift_holds`], or
+/// without physics force closure) stays behind when the palm moves more than
+/// [`HandContact::DROP_DISTANCE_M`] from where the hand closed
+/// ([`crate::sim::puck::Feel`]).
 pub struct HandContact {
     world: WorldWatch,
     link: WorldLink,
-    /// Where the hand last closed and whether that grasp holds.
-    closed: Option<(Pose, bool)>,
+    /// Where the hand last closed, whether that grasp holds, and its spread.
+    closed: Option<(Pose, Hold, f64)>,
+}
+
+/// Whether a closed grasp holds the object: known, or the lift test still running
+/// on its own thread (the static rule stands in should it fail to answer).
+enum Hold {
+    Known(bool),
+    Pending {
+        answer: std::sync::mpsc::Receiver<Option<bool>>,
+        static_rule: bool,
+    },
+}
+
+impl Hold {
+    /// Whether the grasp holds, as far as known now: the emulator never waits for
+    /// the lift test (a CAN reply must not), and until it answers (tens of
+    /// milliseconds after closing, long before the arm lifts) the object stays.
+    fn holds(&mut self) -> bool {
+        if let Hold::Pending {
+            answer,
+            static_rule,
+        } = self
+        {
+            match answer.try_recv() {
+                Ok(Some(held)) => *self = Hold::Known(held),
+                Ok(None) | Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                    *self = Hold::Known(*static_rule)
+                }
+                Err(std::sync::mpsc::TryRecvError::Empty) => return true,
+            }
+        }
+        matches!(self, Hold::Known(true))
+    }
 }
 
 impl HandContact {
     /// The distance the palm may move from where the hand closed before an
-    /// object held without force closure slips out.
+    /// object the hand does not hold slips out.
     pub const DROP_DISTANCE_M: f64 = 0.005;
 
     /// The hand in `world`, sharing `link` with the arm.
@@ -648,15 +767,38 @@ impl crate::sim::puck::Feel for HandContact {
         };
         let c = world.closing(&palm, spread_rad);
         tracing::debug!(?c, "hand closes in the simulated world");
-        self.closed = Some((palm, c.force_closure));
+        // Each finger's close command asks again: one lift test per closing.
+        let same_closing = self.closed.as_ref().is_some_and(|(at, _, spread)| {
+            *spread == spread_rad && crate::geometry::pose_error(at, &palm).0 < 1e-4
+        });
+        if !same_closing {
+            // The lift test takes tens of milliseconds, longer than a CAN reply
+            // may: it runs beside the emulator, at the lowest priority.
+            let (send, answer) = std::sync::mpsc::channel();
+            let closed_at = c.base_from_palm;
+            let test = std::thread::Builder::new()
+                .name("lift-test".into())
+                .spawn(move || {
+                    crate::hw::realtime::lower_thread_priority();
+                    send.send(world.lift_holds(&closed_at, spread_rad))
+                });
+            let hold = match test {
+                Ok(_) => Hold::Pending {
+                    answer,
+                    static_rule: c.force_closure,
+                },
+                Err(_) => Hold::Known(c.force_closure),
+            };
+            self.closed = Some((palm, hold, spread_rad));
+        }
         c.stall_rad
     }
 
     fn still_held(&mut self) -> bool {
-        match (self.closed, self.link.palm()) {
-            (Some((_, true)), _) => true,
-            (Some((at, false)), Some(palm)) => {
+        match (&mut self.closed, self.link.palm()) {
+            (Some((at, hold, _)), Some(palm)) => {
                 (palm.translation.vector - at.translation.vector).norm() <= Self::DROP_DISTANCE_M
+                    || hold.holds()
             }
             _ => true,
         }
