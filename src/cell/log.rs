@@ -260,9 +260,16 @@ impl Logger {
             return Err("no execution end".into());
         };
         if !matches!(end.phase(), Ok(Phase::Done)) {
-            return Ok(Attempt::Stopped {
-                kind: error_kind(end.error_code).to_string(),
-            });
+            let kind = error_kind(end.error_code);
+            // The hand closed and felt nothing, or the object did not stay in it:
+            // the executor stopped because of the grasp, not of the devices, so the
+            // observer judges that grasp (and why it failed) like any executed one.
+            let grasp_failed = matches!(kind, "no_contact" | "grasp_lost");
+            if !(grasp_failed && trial.closing_joints.is_some()) {
+                return Ok(Attempt::Stopped {
+                    kind: kind.to_string(),
+                });
+            }
         }
         let base_from_palm = match trial.closing_joints {
             Some(q) => self.robot.arm().palm(&q),

@@ -929,13 +929,15 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
     );
     text += &format!("{} trials in {:.1} s\n", r.trials.len(), seconds);
     text += &format!(
-        "{:<12} {:<12} {:>6} {:>8} {:>8} {:>8} {:>6} {:>6} {:>6} {:>5} {:>5} {:>7}  {}\n",
+        "{:<12} {:<12} {:>6} {:>8} {:>8} {:>8} {:>5} {:>8} {:>6} {:>6} {:>6} {:>5} {:>5} {:>7}  {}\n",
         "task",
         "method",
         "trials",
         "success",
         "partial",
         "failure",
+        "unrch",
+        "succ|rch",
         "phys%",
         "stat%",
         "FC%",
@@ -947,13 +949,15 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
     for row in &r.rows {
         let causes: Vec<String> = row.causes.iter().map(|(c, n)| format!("{c} {n}")).collect();
         text += &format!(
-            "{:<12} {:<12} {:>6} {:>7.0}% {:>7.0}% {:>7.0}% {:>5.0}% {:>5.0}% {:>5.0}% {:>5} {:>5} {:>7.4}  {}\n",
+            "{:<12} {:<12} {:>6} {:>7.0}% {:>7.0}% {:>7.0}% {:>5} {:>7.0}% {:>5.0}% {:>5.0}% {:>5.0}% {:>5} {:>5} {:>7.4}  {}\n",
             row.task,
             row.method,
             row.trials,
             row.success_pct,
             row.partial_pct,
             row.failure_pct,
+            row.out_of_reach,
+            row.success_in_reach_pct,
             row.physics_success_pct,
             row.static_success_pct,
             row.force_closure_pct,
@@ -968,7 +972,7 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
         verdicts.add(t.physics_grade, t.static_grade);
     }
     text += &verdicts.to_text();
-    text += "(success / partial / failure: the observer's grades; phys% / stat%: successes by the rigid-body lift test and by static epsilon, agree: trials both grade alike; FC: force closure; coll: open hand colliding at the executed pose)\n";
+    text += "(success / partial / failure: the observer's grades; unrch: trials whose task no example grasp reaches at the object's true pose (any method fails them), succ|rch: success over the others; phys% / stat%: successes by the rigid-body lift test and by static epsilon, agree: trials both grade alike; FC: force closure; coll: open hand colliding at the executed pose)\n";
     text
 }
 

@@ -197,6 +197,10 @@ pub struct NovelTrial {
     pub collision: bool,
     /// Whether a grasp was executed (planned, reachable).
     pub executed: bool,
+    /// Whether the task can be reached at all at this placement
+    /// ([`task_in_reach`]): `false` marks a case the arm cannot do whatever the
+    /// planner does (a handle facing away beyond its reach).
+    pub task_in_reach: bool,
     /// The observer's note (or the planner's reason).
     pub note: String,
     /// The executed palm pose, when executed.
@@ -236,6 +240,11 @@ pub struct NovelRow {
     pub mean_epsilon: f64,
     /// Non-successes by cause (`reachability`, `registration`, ...).
     pub causes: BTreeMap<String, usize>,
+    /// Trials whose task no example grasp reaches at the object's true pose
+    /// ([`task_in_reach`]).
+    pub out_of_reach: usize,
+    /// Observer's successes in percent of the trials whose task is in reach.
+    pub success_in_reach_pct: f64,
     /// Successes by the physics verdict, in percent of trials.
     pub physics_success_pct: f64,
     /// Successes by the static (epsilon) verdict, in percent of trials.
@@ -260,11 +269,14 @@ impl NovelRow {
             collisions: 0,
             mean_epsilon: 0.0,
             causes: BTreeMap::new(),
+            out_of_reach: 0,
+            success_in_reach_pct: 0.0,
             physics_success_pct: 0.0,
             static_success_pct: 0.0,
             verdicts: Agreement::default(),
         };
         let (mut fc, mut eps, mut physics_ok, mut static_ok) = (0usize, 0.0, 0usize, 0usize);
+        let mut success_in_reach = 0usize;
         for t in trials {
             row.trials += 1;
             match t.grade {
@@ -280,6 +292,8 @@ impl NovelRow {
             eps += t.epsilon;
             row.verdicts.add(t.physics_grade, t.static_grade);
             physics_ok += usize::from(t.physics_grade == Grade::Success);
+            row.out_of_reach += usize::from(!t.task_in_reach);
+            success_in_reach += usize::from(t.task_in_reach && t.grade == Grade::Success);
             static_ok += usize::from(t.static_grade == Grade::Success);
         }
         if row.trials > 0 {
@@ -291,6 +305,10 @@ impl NovelRow {
             row.force_closure_pct = pct(fc);
             row.mean_epsilon = eps / n;
             row.physics_success_pct = pct(physics_ok);
+            let in_reach = row.trials - row.out_of_reach;
+            if in_reach > 0 {
+                row.success_in_reach_pct = 100.0 * success_in_reach as f64 / in_reach as f64;
+            }
             row.static_success_pct = pct(static_ok);
         }
         row
@@ -442,6 +460,45 @@ pub fn executed_palm(
     }
 }
 
+/// Turns about the object's vertical axis tried by [`task_in_reach`] (rad): the
+/// planner's local search moves a grasp about this far.
+const REACH_TURNS_RAD: [f64; 3] = [-0.26, 0.0, 0.26];
+
+/// Whether the arm can reach `task` on an object standing at `base_from_object`
+/// at all: some example grasp of the task, of any model of `db`, placed on the
+/// object's true pose and turned by up to 15 degrees about its vertical axis, is
+/// reachable with its pre-grasp (collision-free inverse kinematics above the
+/// table). Exhaustive over the database's grasps: when it is `false`, no method
+/// can succeed at this placement, and the trial is reported apart.
+pub fn task_in_reach(
+    robot: &Robot,
+    db: &CategoryDb,
+    task: &str,
+    base_from_object: &Pose,
+    pregrasp_offset_m: f64,
+) -> bool {
+    use crate::robot::HandPose;
+    let seeds = [crate::cell::harness::HOME_JOINTS_RAD];
+    db.file.grasps.iter().filter(|g| g.task == task).any(|g| {
+        let Ok(object_from_palm) = g.pose.to_pose("grasp") else {
+            return false;
+        };
+        let hand = HandPose {
+            spread_rad: g.spread_rad,
+            flex_rad: [0.0; 3],
+        };
+        REACH_TURNS_RAD.iter().any(|&turn| {
+            let turned = nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, turn);
+            let palm =
+                base_from_object * Pose::from_parts(Default::default(), turned) * object_from_palm;
+            let pregrasp = palm * Pose::translation(0.0, 0.0, -pregrasp_offset_m);
+            robot
+                .reach(&palm, &hand, &seeds)
+                .is_ok_and(|at| robot.reach(&pregrasp, &hand, &[at.joints]).is_ok())
+        })
+    })
+}
+
 /// Seeds of one object placement: placement, camera noise, registration, joints.
 fn unit_seeds(seed: u64, unit: u64) -> [u64; 4] {
     [0, 1, 2, 3].map(|k| instance_seed(seed ^ 0x006e_6f76_656c, unit * 4 + k))
@@ -584,6 +641,13 @@ pub fn run_novel(
                     cell.config.table.height_m - base_from_object.translation.vector.z,
                 ));
             for task in &category.tasks {
+                let in_reach = task_in_reach(
+                    &cell.robot,
+                    &category.db,
+                    task,
+                    &base_from_object,
+                    cell.config.robot.pregrasp_offset_m,
+                );
                 for method in &options.methods {
                     let started = std::time::Instant::now();
                     let request = TrialRequest::new(unit, 0, object.category.name(), task, method)
@@ -660,6 +724,7 @@ pub fn run_novel(
                         force_closure: seen.epsilon > 0.0,
                         collision,
                         executed: palm.is_some(),
+                        task_in_reach: in_reach,
                         note: seen.note,
                         palm: palm.map(|(p, _)| PoseJson::from(&p)),
                         best_fit_offset_mm,
@@ -730,11 +795,24 @@ mod tests {
             force_closure: eps > 0.0,
             collision,
             executed: true,
+            task_in_reach: method != "best-single",
             note: String::new(),
             palm: None,
             best_fit_offset_mm: None,
             plan_ms: 1.0,
         }
+    }
+
+    /// The reach check is exhaustive over the database's grasps: a mug in the
+    /// middle of the table can be taken from the top, one 2 m away by no grasp.
+    #[test]
+    fn a_task_is_in_reach_on_the_table_and_out_of_reach_far_away() {
+        let db = CategoryDb::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug")).unwrap();
+        let robot = crate::robot::shipped_robot();
+        let at = |x: f64| Pose::translation(x, 0.0, 0.0);
+        assert!(task_in_reach(&robot, &db, "top", &at(0.6), 0.1));
+        assert!(!task_in_reach(&robot, &db, "top", &at(2.0), 0.1));
+        assert!(!task_in_reach(&robot, &db, "no-such-task", &at(0.6), 0.1));
     }
 
     #[test]
@@ -765,11 +843,19 @@ mod tests {
         let all = &rows[4];
         assert_eq!((all.task.as_str(), all.trials, all.success), ("all", 4, 2));
         assert_eq!(rows[5].collisions, 1);
+        assert_eq!(
+            (rows[5].out_of_reach, rows[5].success_in_reach_pct),
+            (1, 0.0)
+        );
         assert_eq!(rows[3].trials, 0, "best single had no side trial");
         // Both verdicts: physics is the grade here; static succeeds above 0.05.
         assert!((top.physics_success_pct - 100.0 / 3.0).abs() < 1e-9);
         assert!((top.static_success_pct - 100.0 / 3.0).abs() < 1e-9);
         assert_eq!((top.verdicts.total, top.verdicts.agree), (3, 2));
+        assert_eq!(
+            (top.out_of_reach, top.success_in_reach_pct),
+            (0, 100.0 / 3.0)
+        );
         assert_eq!(
             top.verdicts.counts[1][2], 1,
             "physics partial, static failure"
