@@ -460,41 +460,36 @@ pub fn executed_palm(
     }
 }
 
-/// Turns about the object's vertical axis tried by [`task_in_reach`] (rad): the
-/// planner's local search moves a grasp about this far.
-const REACH_TURNS_RAD: [f64; 3] = [-0.26, 0.0, 0.26];
+/// Turns about the object's vertical axis tried by [`task_in_reach`] (rad): up to
+/// 30 degrees either way, beyond what the planner's local search moves a grasp.
+const REACH_TURNS_RAD: [f64; 5] = [-0.52, -0.26, 0.0, 0.26, 0.52];
 
-/// Whether the arm can reach `task` on an object standing at `base_from_object`
-/// at all: some example grasp of the task, of any model of `db`, placed on the
-/// object's true pose and turned by up to 15 degrees about its vertical axis, is
-/// reachable with its pre-grasp (collision-free inverse kinematics above the
-/// table). Exhaustive over the database's grasps: when it is `false`, no method
-/// can succeed at this placement, and the trial is reported apart.
-pub fn task_in_reach(
-    robot: &Robot,
-    db: &CategoryDb,
-    task: &str,
-    base_from_object: &Pose,
-    pregrasp_offset_m: f64,
-) -> bool {
-    use crate::robot::HandPose;
-    let seeds = [crate::cell::harness::HOME_JOINTS_RAD];
+/// Offsets along the palm's approach axis tried by [`task_in_reach`] (m): the
+/// approach to contact's and the refinement's range.
+const REACH_DEPTHS_M: [f64; 3] = [-0.05, 0.0, 0.05];
+
+/// Whether the arm could reach `task` on an object standing at `base_from_object`
+/// at all. It is `false` only when it is proved impossible: for every example grasp
+/// of the task of every model of `db`, placed on the object's true pose, turned up
+/// to 30 degrees about its vertical axis and moved 5 cm either way along its
+/// approach axis, the wrist centre lies farther from the shoulder than the arm is
+/// long ([`Robot::out_of_reach`]), so no joint values reach it. Such a trial (a
+/// handle facing away, out at the table's far edge) no method can do; it is
+/// reported apart.
+pub fn task_in_reach(robot: &Robot, db: &CategoryDb, task: &str, base_from_object: &Pose) -> bool {
     db.file.grasps.iter().filter(|g| g.task == task).any(|g| {
         let Ok(object_from_palm) = g.pose.to_pose("grasp") else {
-            return false;
-        };
-        let hand = HandPose {
-            spread_rad: g.spread_rad,
-            flex_rad: [0.0; 3],
+            return true;
         };
         REACH_TURNS_RAD.iter().any(|&turn| {
-            let turned = nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, turn);
-            let palm =
-                base_from_object * Pose::from_parts(Default::default(), turned) * object_from_palm;
-            let pregrasp = palm * Pose::translation(0.0, 0.0, -pregrasp_offset_m);
-            robot
-                .reach(&palm, &hand, &seeds)
-                .is_ok_and(|at| robot.reach(&pregrasp, &hand, &[at.joints]).is_ok())
+            let turned = Pose::rotation(nalgebra::Vector3::z() * turn);
+            REACH_DEPTHS_M.iter().any(|&depth| {
+                let palm = base_from_object
+                    * turned
+                    * object_from_palm
+                    * Pose::translation(0.0, 0.0, depth);
+                robot.out_of_reach(&palm).is_none()
+            })
         })
     })
 }
@@ -641,13 +636,7 @@ pub fn run_novel(
                     cell.config.table.height_m - base_from_object.translation.vector.z,
                 ));
             for task in &category.tasks {
-                let in_reach = task_in_reach(
-                    &cell.robot,
-                    &category.db,
-                    task,
-                    &base_from_object,
-                    cell.config.robot.pregrasp_offset_m,
-                );
+                let in_reach = task_in_reach(&cell.robot, &category.db, task, &base_from_object);
                 for method in &options.methods {
                     let started = std::time::Instant::now();
                     let request = TrialRequest::new(unit, 0, object.category.name(), task, method)
@@ -810,9 +799,9 @@ mod tests {
         let db = CategoryDb::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug")).unwrap();
         let robot = crate::robot::shipped_robot();
         let at = |x: f64| Pose::translation(x, 0.0, 0.0);
-        assert!(task_in_reach(&robot, &db, "top", &at(0.6), 0.1));
-        assert!(!task_in_reach(&robot, &db, "top", &at(2.0), 0.1));
-        assert!(!task_in_reach(&robot, &db, "no-such-task", &at(0.6), 0.1));
+        assert!(task_in_reach(&robot, &db, "top", &at(0.6)));
+        assert!(!task_in_reach(&robot, &db, "top", &at(2.0)));
+        assert!(!task_in_reach(&robot, &db, "no-such-task", &at(0.6)));
     }
 
     #[test]

@@ -319,6 +319,20 @@ impl Robot {
             .check_except_table(&self.link_poses(arm, hand), &self.hand_links)
     }
 
+    /// [`UnreachableReason::OutOfReach`] when the wrist centre of the palm pose
+    /// `palm` is farther from the shoulder than the arm is long (no joint values
+    /// reach it, whatever the limits and collisions); `None` otherwise.
+    pub fn out_of_reach(&self, palm: &Pose) -> Option<UnreachableReason> {
+        let wrist = palm * self.wrist_in_palm;
+        let wrist_distance_m = (wrist - self.shoulder).norm();
+        (wrist_distance_m > self.max_reach_m + self.ik.options().accept_position_m).then_some(
+            UnreachableReason::OutOfReach {
+                wrist_distance_m,
+                max_reach_m: self.max_reach_m,
+            },
+        )
+    }
+
     /// Whether the palm pose is reachable with the hand in `hand`; `seeds` are tried
     /// first (e.g. the current configuration, the previous solution).
     pub fn reach(
@@ -352,13 +366,8 @@ impl Robot {
         {
             return Err(not(UnreachableReason::HandOnTable { link }));
         }
-        let wrist = palm * self.wrist_in_palm;
-        let wrist_distance_m = (wrist - self.shoulder).norm();
-        if wrist_distance_m > self.max_reach_m + self.ik.options().accept_position_m {
-            return Err(not(UnreachableReason::OutOfReach {
-                wrist_distance_m,
-                max_reach_m: self.max_reach_m,
-            }));
+        if let Some(out) = self.out_of_reach(palm) {
+            return Err(not(out));
         }
         let mut first_collision = None;
         let result =
