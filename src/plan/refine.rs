@@ -265,21 +265,25 @@ pub fn refine_in_sim(
         })
         .collect();
     evaluations += scanned.len();
-    scanned.sort_by(|a, b| b.1.total_cmp(&a.1));
-    for (y, eps) in scanned {
-        if eps <= best.1 + 1e-12 {
-            break;
-        }
-        let (pose, spread) = moved(&start.pose, start.spread_rad, &y);
-        match feasible(
-            &best.0,
+    // The candidate `y` as a planned grasp, when feasible (seeded from `near`).
+    let feasible_at = |y: &[f64; 5], near: &PlannedGrasp| {
+        let (pose, spread) = moved(&start.pose, start.spread_rad, y);
+        feasible(
+            near,
             pose,
             spread,
             reach,
             seen,
             pregrasp_offset_m,
             log_objective,
-        ) {
+        )
+    };
+    scanned.sort_by(|a, b| b.1.total_cmp(&a.1));
+    for (y, eps) in scanned {
+        if eps <= best.1 + 1e-12 {
+            break;
+        }
+        match feasible_at(&y, &best.0) {
             Some(grasp) => {
                 best = (grasp, eps);
                 x = y;
@@ -307,15 +311,7 @@ pub fn refine_in_sim(
                 if eps <= best.1 + 1e-12 {
                     continue;
                 }
-                let Some(grasp) = feasible(
-                    &best.0,
-                    pose,
-                    spread,
-                    reach,
-                    seen,
-                    pregrasp_offset_m,
-                    log_objective,
-                ) else {
+                let Some(grasp) = feasible_at(&y, &best.0) else {
                     infeasible += 1;
                     continue;
                 };
