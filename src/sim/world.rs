@@ -1059,6 +1059,32 @@ mod tests {
         assert!(!link.hand().holding);
     }
 
+    /// The hold decision is the physics lift test's: a side grasp of a 35 mm
+    /// cylinder (the physics tests' case) lifts it, the same grasp 0.3 m beside it
+    /// lifts nothing; a world without physics does not decide.
+    #[test]
+    fn the_object_comes_up_only_when_the_lift_test_lifts_it() {
+        let mut scene = Scene::new(Some(table()));
+        let mesh = crate::quality::autograsp::tests::cylinder(0.035, 0.12, 32);
+        scene
+            .add("cylinder", mesh, Pose::translation(0.6, 0.0, 0.06))
+            .unwrap();
+        let world = SimWorld::new(&scene, hand(), 2e4).unwrap();
+        let palm = crate::geometry::pose_from_params(&[
+            0.6 - 0.035 - 0.060 - 0.002,
+            0.0,
+            0.06,
+            0.0,
+            PI / 2.0,
+            0.0,
+        ]);
+        assert_eq!(world.lift_holds(&palm, 0.0), None);
+        let world = world.with_physics(PhysicsOptions::default()).unwrap();
+        assert_eq!(world.lift_holds(&palm, 0.0), Some(true));
+        let beside = Pose::translation(0.0, 0.3, 0.0) * palm;
+        assert_eq!(world.lift_holds(&beside, 0.0), Some(false));
+    }
+
     #[test]
     fn shared_state_files_round_trip_between_handles() {
         let dir = std::env::temp_dir().join(format!("gc-world-link-{}", std::process::id()));
