@@ -1075,7 +1075,7 @@ mod tests {
             0.0,
             0.06,
             0.0,
-            PI / 2.0,
+            std::f64::consts::FRAC_PI_2,
             0.0,
         ]);
         assert_eq!(world.lift_holds(&palm, 0.0), None);
