@@ -943,7 +943,7 @@ pub fn lift_test(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::quality::autograsp::tests::{cuboid, cylinder};
     use crate::robot::shipped_robot;
@@ -990,7 +990,7 @@ mod tests {
 
     /// A side grasp of a 35 mm cylinder standing on the table at (0.6, 0, 0): the
     /// palm faces it along base +x, the fingers close horizontally around it.
-    fn side_grasp() -> (PhysicsObject, LiftScene) {
+    pub(crate) fn side_grasp() -> (PhysicsObject, LiftScene) {
         let options = PhysicsOptions::default();
         let mesh = cylinder(0.035, 0.12, 32);
         let object = PhysicsObject::new(&mesh, Path::new("cylinder"), &options).unwrap();

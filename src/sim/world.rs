@@ -1064,20 +1064,12 @@ mod tests {
     /// lifts nothing; a world without physics does not decide.
     #[test]
     fn the_object_comes_up_only_when_the_lift_test_lifts_it() {
+        let (_, lift) = crate::sim::physics::tests::side_grasp();
         let mut scene = Scene::new(Some(table()));
         let mesh = crate::quality::autograsp::tests::cylinder(0.035, 0.12, 32);
-        scene
-            .add("cylinder", mesh, Pose::translation(0.6, 0.0, 0.06))
-            .unwrap();
+        scene.add("cylinder", mesh, lift.base_from_object).unwrap();
         let world = SimWorld::new(&scene, hand(), 2e4).unwrap();
-        let palm = crate::geometry::pose_from_params(&[
-            0.6 - 0.035 - 0.060 - 0.002,
-            0.0,
-            0.06,
-            0.0,
-            std::f64::consts::FRAC_PI_2,
-            0.0,
-        ]);
+        let palm = lift.base_from_palm;
         assert_eq!(world.lift_holds(&palm, 0.0), None);
         let world = world.with_physics(PhysicsOptions::default()).unwrap();
         assert_eq!(world.lift_holds(&palm, 0.0), Some(true));
