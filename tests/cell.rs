@@ -52,6 +52,7 @@ fn start(tag: &str, domain: &Domain) -> Fixture {
         simulated_devices: true,
         home_joints_rad: HOME_JOINTS_RAD,
         observer: Default::default(),
+        protocol: graspcell::ipc::Protocol::Cell,
     };
     Fixture {
         cell: Cell::start(options, domain.clone()).expect("cell starts"),

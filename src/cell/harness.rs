@@ -11,7 +11,7 @@ use super::setup::{upright_pose, TrialSetup};
 use super::{CellError, StageArgs, STAGES};
 use crate::config::CellConfig;
 use crate::ipc::{
-    monotonic_now_ns, Domain, JointStates, MessagePublisher, MessageSubscriber, Stage,
+    monotonic_now_ns, Domain, JointStates, MessagePublisher, MessageSubscriber, Protocol, Stage,
     TrialRequest, TrialResult,
 };
 use crate::mesh::procedural::{generate, instance_seed, Category};
@@ -47,6 +47,9 @@ pub struct HarnessOptions {
     pub home_joints_rad: [f64; 7],
     /// Who grades the trials (the log stage's `--observer`).
     pub observer: super::log::ObserverKind,
+    /// Whose settings the trials' perception and planning use (the cell's, or the
+    /// paper's robot protocol).
+    pub protocol: Protocol,
 }
 
 impl HarnessOptions {
@@ -68,6 +71,7 @@ impl HarnessOptions {
             simulated_devices: true,
             home_joints_rad: HOME_JOINTS_RAD,
             observer: super::log::ObserverKind::default(),
+            protocol: Protocol::Cell,
         })
     }
 }
@@ -533,7 +537,8 @@ impl Cell {
                 setup.write_sim_scene(&self.sim_scene_path())?;
             }
         }
-        let request = TrialRequest::new(trial_id, monotonic_now_ns(), category, task, method)?;
+        let request = TrialRequest::new(trial_id, monotonic_now_ns(), category, task, method)?
+            .with_protocol(self.options.protocol);
         let operator = self
             .operator
             .as_ref()

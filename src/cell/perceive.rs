@@ -24,8 +24,8 @@ use crate::cloud::PointCloud;
 use crate::config::CellConfig;
 use crate::geometry::Pose;
 use crate::ipc::{
-    monotonic_now_ns, wait_any, CloudTopic, Domain, FitStatus, Fits, ModelFit, Stage, TrialRequest,
-    Wakeable, MAX_FITS,
+    monotonic_now_ns, wait_any, CloudTopic, Domain, FitStatus, Fits, ModelFit, Protocol, Stage,
+    TrialRequest, Wakeable, MAX_FITS,
 };
 use crate::register::{perceive, ModelSet, RegisterParams, RegistrationStatus};
 use std::collections::HashMap;
@@ -86,6 +86,17 @@ pub fn categories(db_dir: &std::path::Path) -> Result<Vec<String>, CellError> {
     Ok(names)
 }
 
+/// The registration parameters of a trial under `protocol`: the defaults, or
+/// scored as the paper did ([`RegisterParams::paper`]).
+pub fn register_params(protocol: Protocol) -> RegisterParams {
+    let params = RegisterParams::default();
+    if protocol.is_paper() {
+        params.paper()
+    } else {
+        params
+    }
+}
+
 /// Segments and registers one snapshot; the fits message for `trial_id`. A
 /// snapshot in which no object can be found gives fits with no model.
 pub fn perceive_trial(
@@ -94,15 +105,15 @@ pub fn perceive_trial(
     base_from_camera: &Pose,
     segment: &SegmentParams,
     models: &ModelSet,
+    params: &RegisterParams,
     seed: u64,
 ) -> Result<Fits, CellError> {
-    let params = RegisterParams::default();
     let perception = match perceive(
         cloud_camera,
         base_from_camera,
         segment,
         models,
-        &params,
+        params,
         seed,
     ) {
         Ok(p) => p,
@@ -211,14 +222,20 @@ pub fn run(
                 .ok()
                 .flatten()
                 .map_or(trial_id, |s| s.perception_seed);
-            let fits = match request
-                .category()
-                .map_err(CellError::from)
-                .and_then(|c| sets.get(c))
-            {
-                Ok(models) => {
-                    perceive_trial(trial_id, &cloud, &base_from_camera, &segment, models, seed)?
-                }
+            let wanted = request.protocol().map_err(CellError::from).and_then(|p| {
+                let models = sets.get(request.category()?)?;
+                Ok((models, register_params(p)))
+            });
+            let fits = match wanted {
+                Ok((models, params)) => perceive_trial(
+                    trial_id,
+                    &cloud,
+                    &base_from_camera,
+                    &segment,
+                    models,
+                    &params,
+                    seed,
+                )?,
                 Err(e) => {
                     tracing::error!(trial_id, "no models: {e}");
                     Fits::new(trial_id, monotonic_now_ns(), &[])?

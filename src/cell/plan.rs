@@ -16,8 +16,8 @@ use crate::execute::{validate_grasp, ExecutionRequest, ExecutorConfig, SafetyChe
 use crate::geometry::PoseJson;
 use crate::ipc::Domain;
 use crate::ipc::{
-    monotonic_now_ns, wait_any, FailureCause, FitStatus, Fits, GraspPlan, JointStates, Stage,
-    TrialRequest, Wakeable,
+    monotonic_now_ns, wait_any, FailureCause, FitStatus, Fits, GraspPlan, JointStates, Protocol,
+    Stage, TrialRequest, Wakeable,
 };
 use crate::plan::{plan, Kernel, ModelFit, PlanOptions, PlannedGrasp, Reachability};
 use crate::robot::kinematics::ArmJoints;
@@ -109,6 +109,27 @@ pub fn planner_fits(db: &CategoryDb, fits: &Fits) -> Result<Vec<ModelFit>, CellE
     Ok(out)
 }
 
+/// The planner's options of `method` under `protocol`: the method's kernel with the
+/// category's weights and the reachability repair (the cell's), or the paper's
+/// kernel scale and weights without repair ([`crate::plan::PlanMode::apply`]).
+pub fn trial_options(
+    config: &CellConfig,
+    db: &CategoryDb,
+    method: &str,
+    protocol: Protocol,
+) -> Result<PlanOptions, String> {
+    let (kernel, best_single) = method_kernel(method)
+        .ok_or_else(|| format!("method {method:?}: unknown (use {})", METHODS.join(", ")))?;
+    let mut options = PlanOptions {
+        weights: crate::plan::category::weights(db),
+        // The baseline's repair only when the baseline is the method.
+        repair_best_single: best_single,
+        ..PlanOptions::new(kernel, config)
+    };
+    protocol.plan_mode().apply(&mut options);
+    Ok(options)
+}
+
 /// Plans trial `request` from `fits`: the grasp to execute, or why there is none.
 pub fn plan_trial(
     config: &CellConfig,
@@ -124,12 +145,7 @@ pub fn plan_trial(
     let category = request.category().map_err(|e| other(e.to_string()))?;
     let task = request.task().map_err(|e| other(e.to_string()))?;
     let method = request.method().map_err(|e| other(e.to_string()))?;
-    let (kernel, best_single) = method_kernel(method).ok_or_else(|| {
-        other(format!(
-            "method {method:?}: unknown (use {})",
-            METHODS.join(", ")
-        ))
-    })?;
+    let best_single = method == "best-single";
     let db = dbs.get(category).map_err(|e| other(e.to_string()))?;
     let model_fits = planner_fits(db, fits).map_err(|e| other(e.to_string()))?;
     if model_fits.is_empty() {
@@ -140,12 +156,8 @@ pub fn plan_trial(
     }
     let grasps = crate::plan::category::example_grasps(db, &model_fits, task)
         .map_err(|e| other(e.to_string()))?;
-    let options = PlanOptions {
-        weights: crate::plan::category::weights(db),
-        // The baseline's repair only when the baseline is the method.
-        repair_best_single: best_single,
-        ..PlanOptions::new(kernel, config)
-    };
+    let protocol = request.protocol().map_err(|e| other(e.to_string()))?;
+    let options = trial_options(config, db, method, protocol).map_err(other)?;
     let outcome = plan(
         &model_fits,
         &grasps,
@@ -396,6 +408,29 @@ mod tests {
         assert!(method_kernel("best-single").unwrap().1);
         assert!(!method_kernel("laplace").unwrap().1);
         assert!(method_kernel("nearest").is_none());
+    }
+
+    #[test]
+    fn the_papers_protocol_plans_with_its_scale_and_weights_and_no_repair() {
+        let config = crate::config::CellConfig::load(Path::new("robot/cell.toml")).unwrap();
+        let mut dbs = Databases::new(Path::new("db"));
+        let db = dbs.get("mug").unwrap();
+        let cell = trial_options(&config, db, "gaussian-r", Protocol::Cell).unwrap();
+        assert_eq!(cell.kernel, Kernel::GAUSSIAN_R_DEFAULT);
+        assert_eq!(cell.weights, crate::plan::category::weights(db));
+        assert!(cell.repair);
+        let paper = trial_options(&config, db, "gaussian-r", Protocol::PaperRobot).unwrap();
+        assert_eq!(paper.kernel, Kernel::paper_gaussian_r(700.0));
+        assert_eq!(paper.weights, crate::plan::Weights::default());
+        assert!(!paper.repair);
+        let single = trial_options(&config, db, "best-single", Protocol::PaperRobot).unwrap();
+        assert!(
+            !single.repair,
+            "no method is repaired in the paper's protocol"
+        );
+        assert!(trial_options(&config, db, "nearest", Protocol::Cell)
+            .unwrap_err()
+            .contains("nearest"));
     }
 
     /// A top-down grasp over the table at `xyz` with its pre-grasp 10 cm above.

@@ -237,6 +237,12 @@ pub struct CampaignArgs {
     /// Who grades: the physics lift test or static epsilon (both verdicts are logged).
     #[arg(long, value_enum, default_value_t = crate::cell::log::ObserverKind::Physics)]
     pub observer: crate::cell::log::ObserverKind,
+    /// The paper's robot protocol (issue 19) for perception and planning: one-sided
+    /// fit score with poor fits kept, kernel scale s = b = 700, the paper's weights,
+    /// and no reachability repair for any method (unreachable grasps fail as
+    /// reachability and are counted apart). Default campaign ids end in `-paper`.
+    #[arg(long)]
+    pub paper: bool,
     /// Print one JSON document instead of lines.
     #[arg(long)]
     pub json: bool,
@@ -625,7 +631,12 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     let campaign_id = |task: &str| match &args.campaign {
         Some(c) if tasks.len() == 1 => c.clone(),
         Some(c) => format!("{c}-{task}"),
-        None => format!("{}-{task}-seed{}", args.kind.category, args.seed),
+        None => format!(
+            "{}-{task}-seed{}{}",
+            args.kind.category,
+            args.seed,
+            if args.paper { "-paper" } else { "" }
+        ),
     };
     // Resume: trials of these campaigns already graded are not run again.
     let mut done: HashSet<(String, String, u32, String)> = HashSet::new();
@@ -697,6 +708,9 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     options.hold_s = args.hold_s;
     options.observer = args.observer;
     options.log_path = args.log.clone();
+    if args.paper {
+        options.protocol = crate::ipc::Protocol::PaperRobot;
+    }
     crate::cell::install_stop_handler();
     let lines = {
         let mut cell = Cell::start(options, (*domain).clone()).context("starting the cell")?;

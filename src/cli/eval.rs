@@ -17,7 +17,7 @@ use crate::eval::{
     PlacementRegion, ViewKind, DEFAULT_EQUAL_TOLERANCE,
 };
 use crate::mesh::procedural::Category;
-use crate::plan::{FitWeight, Kernel, PlanOptions, Reachability};
+use crate::plan::{FitWeight, Kernel, PaperProtocol, PlanMode, PlanOptions, Reachability};
 use crate::robot::hand::HandModel;
 use crate::robot::Robot;
 use crate::sim::camera::DepthCamera;
@@ -269,7 +269,9 @@ pub struct ExperimentArgs {
     pub placements: usize,
     /// The paper's setting (issue 19): no retreat of a colliding hand, a colliding
     /// grasp scores -1 (unstable, Table 1) and collisions are counted per method;
-    /// the paper's kernel scale s = b = 50 unless --paper-scale says otherwise.
+    /// the paper's kernel scale s = b = 50 unless --paper-scale says otherwise, its
+    /// weights, no reachability repair for any method (with --reach), and its
+    /// one-sided fit score with poor registrations kept.
     #[arg(long)]
     pub paper: bool,
     /// Write the better / equal / worse bar chart (PNG) here.
@@ -280,20 +282,12 @@ pub struct ExperimentArgs {
     pub json: bool,
 }
 
-/// The paper's kernel scale in its simulation (s = b = 50, mm and rad mixed).
-pub const PAPER_SIMULATION_SCALE: f64 = 50.0;
-
 impl ExperimentArgs {
     /// The kernels' paper scale: `--paper-scale`, else with `--paper` the paper's
     /// simulation value, else none (the cell's own scales).
-    ///
-    /// PAPER-MODE PLANNER SWITCH (issue 19 items 1 and 5): when the planner helper's
-    /// library option for the paper's setting (kernel scales, no reachability repair
-    /// for any method) is on main, `--paper` sets it here, in one place, instead of
-    /// only the scale.
     pub fn kernel_scale(&self) -> Option<f64> {
         self.paper_scale
-            .or(self.paper.then_some(PAPER_SIMULATION_SCALE))
+            .or(self.paper.then(|| PaperProtocol::Simulation.scale()))
     }
 }
 
@@ -430,6 +424,13 @@ impl Cell {
         };
         let mut plan = PlanOptions::new(Kernel::LAPLACE_DEFAULT, c);
         plan.z_min_m = c.table.height_m + args.palm_clearance_m;
+        if args.paper {
+            // The paper's weights and no repair; the kernels come per run.
+            PlanMode::Paper {
+                protocol: PaperProtocol::Simulation,
+            }
+            .apply(&mut plan);
+        }
         plan.weights.fit = match (args.fit_weight, view) {
             (Some(FitWeightName::Eps), _) | (None, ViewKind::Complete) => FitWeight::Eps,
             (Some(FitWeightName::EpsSigma), _) | (None, ViewKind::Partial) => FitWeight::EpsSigma,
@@ -480,13 +481,14 @@ fn progress_bar(label: &str) -> ProgressBar {
 /// The tally rows as a text table.
 fn tally_table(rows: &[TallyRow]) -> String {
     let mut text = format!(
-        "{:<8} {:<11} {:>4} {:>7} {:>7} {:>7} {:>9} {:>9} {:>6} {:>6} {:>5} {:>6}\n",
+        "{:<8} {:<11} {:>4} {:>7} {:>7} {:>7} {:>8} {:>9} {:>9} {:>6} {:>6} {:>5} {:>6}\n",
         "task",
         "kernel",
         "runs",
         "better",
         "equal",
         "worse",
+        "sign p",
         "eps",
         "eps 1",
         "FC%",
@@ -497,13 +499,14 @@ fn tally_table(rows: &[TallyRow]) -> String {
     for r in rows {
         let t = &r.tally;
         text += &format!(
-            "{:<8} {:<11} {:>4} {:>6.1}% {:>6.1}% {:>6.1}% {:>9.4} {:>9.4} {:>5.0}% {:>5.0}% {:>5} {:>6}\n",
+            "{:<8} {:<11} {:>4} {:>6.1}% {:>6.1}% {:>6.1}% {:>8.2e} {:>9.4} {:>9.4} {:>5.0}% {:>5.0}% {:>5} {:>6}\n",
             r.task,
             r.kernel,
             t.runs,
             t.better_pct,
             t.equal_pct,
             t.worse_pct,
+            t.sign_test_p,
             t.mean_epsilon,
             t.mean_epsilon_single,
             t.force_closure_pct,
@@ -512,7 +515,7 @@ fn tally_table(rows: &[TallyRow]) -> String {
             r.collisions_single
         );
     }
-    text += "(eps: mean epsilon of our grasps; eps 1 / FC% 1 / coll 1: of best single; FC: force closure; coll: open hand colliding at the grasp)\n";
+    text += "(sign p: two-sided exact sign test, better against worse; eps: mean epsilon of our grasps; eps 1 / FC% 1 / coll 1: of best single; FC: force closure; coll: open hand colliding at the grasp)\n";
     text
 }
 
@@ -628,7 +631,8 @@ pub fn loo(config: &Path, args: LooArgs) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
     let registrar = CategoryRegistrar::new(&db, cell.viewpoint(setup.view, e.normals_from))
         .with_context(|| format!("{}: preparing the models", db.dir.display()))?
-        .for_view(setup.view);
+        .for_view(setup.view)
+        .paper(e.paper);
     let bar = progress_bar(&format!("loo {}", args.category));
     let report = leave_one_out(&setup, &db, &e.tasks, &kernels, &registrar, Some(&bar));
     bar.finish_and_clear();
@@ -716,7 +720,8 @@ pub fn cross(config: &Path, args: CrossArgs) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
     let registrar = CategoryRegistrar::new(&train, cell.viewpoint(setup.view, e.normals_from))
         .with_context(|| format!("{}: preparing the models", train.dir.display()))?
-        .for_view(setup.view);
+        .for_view(setup.view)
+        .paper(e.paper);
     let bar = progress_bar(&format!("cross {} -> {}", args.train, args.test));
     let report = cross_category(
         &setup,

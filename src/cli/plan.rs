@@ -178,8 +178,9 @@ pub struct PlanArgs {
     #[arg(long, value_name = "Q1,...,Q7", allow_hyphen_values = true)]
     pub from_joints: Option<String>,
     /// The paper's settings: its kernel scale (s = b = 50 for `simulation`, 700 for
-    /// `robot`), its fixed weights, and no reachability repair for any method (an
-    /// unreachable grasp is reported as such). Without a value: `simulation`.
+    /// `robot`), its fixed weights, no reachability repair for any method (an
+    /// unreachable grasp is reported as such), and with --cloud its one-sided fit
+    /// score with poor registrations kept. Without a value: `simulation`.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "simulation")]
     pub paper: Option<PaperProtocol>,
     /// With --cloud: do not treat the seen points as an obstacle of the open hand.
@@ -286,10 +287,13 @@ fn register_cloud(
             [eye.x, eye.y, eye.z]
         }
     };
-    let params = RegisterParams {
+    let mut params = RegisterParams {
         viewpoint_m: Some(viewpoint),
         ..RegisterParams::default()
     };
+    if args.paper.is_some() {
+        params = params.paper();
+    }
     let target = read_cloud(path)?;
     let models = ModelSet::from_category(db, &params)
         .with_context(|| format!("{}: preparing the models", db.dir.display()))?;

@@ -1,6 +1,7 @@
 //! Our grasp against the best-single baseline: the verdict of one run and the
 //! tallies of the paper's Figures 5 and 6 (share of runs better / equal / worse).
 
+use crate::trial::stats::sign_test_p_value;
 use serde::Serialize;
 
 /// Default tolerance on epsilon under which two grasps count as equal: about 5 % of
@@ -58,6 +59,9 @@ pub struct Tally {
     pub force_closure_pct: f64,
     /// Share of the best-single grasps that are force closure (percent).
     pub force_closure_single_pct: f64,
+    /// Two-sided exact sign test of ours against best single over the runs that
+    /// differ (better against worse; 1 when none differ).
+    pub sign_test_p: f64,
 }
 
 /// One run as the tally needs it.
@@ -98,6 +102,7 @@ impl Tally {
             t.force_closure_pct = pct(fc);
             t.force_closure_single_pct = pct(fc_single);
         }
+        t.sign_test_p = sign_test_p_value(t.better as u64, t.worse as u64);
         t
     }
 }
@@ -143,6 +148,23 @@ mod tests {
         assert!((t.mean_epsilon - 0.15).abs() < 1e-12);
         assert!((t.mean_epsilon_single - 0.0875).abs() < 1e-12);
         assert!((t.force_closure_pct - 75.0).abs() < 1e-12);
-        assert_eq!(Tally::of([], 0.01), Tally::default());
+        // Two better against one worse: no evidence either way.
+        assert!((t.sign_test_p - 1.0).abs() < 1e-12);
+        let ten_better = Tally::of(
+            (0..10).map(|_| Pair {
+                ours: 0.2,
+                single: 0.0,
+            }),
+            0.01,
+        );
+        // 2 / 2^10: two-sided exact.
+        assert!((ten_better.sign_test_p - 2.0 / 1024.0).abs() < 1e-12);
+        assert_eq!(
+            Tally::of([], 0.01),
+            Tally {
+                sign_test_p: 1.0,
+                ..Tally::default()
+            }
+        );
     }
 }

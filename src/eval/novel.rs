@@ -20,14 +20,14 @@
 
 use super::objects::UserObject;
 use crate::category::CategoryDb;
-use crate::cell::perceive::perceive_trial;
+use crate::cell::perceive::{perceive_trial, register_params};
 use crate::cell::plan::{executable_joints, plan_trial, Databases};
 use crate::cell::setup::novel_object_in;
 use crate::cloud::segment::SegmentParams;
 use crate::config::CellConfig;
 use crate::execute::{ExecutorConfig, SafetyCheck, SafetyLimits};
 use crate::geometry::{pose_error, Pose, PoseJson};
-use crate::ipc::{FitStatus, Fits, TrialRequest};
+use crate::ipc::{FitStatus, Fits, Protocol, TrialRequest};
 use crate::mesh::procedural::held_apart::Family;
 use crate::mesh::procedural::{instance_seed, Category};
 use crate::mesh::TriMesh;
@@ -152,14 +152,11 @@ pub struct NovelOptions {
     pub tasks: Vec<String>,
     /// The lab's errors.
     pub lab: LabErrors,
-    /// The paper's setting: no approach to contact (the hand closes at the planned
-    /// pose, see [`executed_palm`]) and collisions of the open hand fail (the
-    /// observer's rule) and are counted per method.
-    ///
-    /// PAPER-MODE PLANNER SWITCH (issue 19 item 5): the paper's kernel scales and
-    /// reachability treatment are the planner helper's library option; when it is on
-    /// main, [`run_novel`] passes `paper` to the planning here. Until then the plan
-    /// stage's planning runs with each method's default kernel in both settings.
+    /// The paper's setting: its robot protocol for perception and planning
+    /// ([`Protocol::PaperRobot`]: one-sided fit score, poor fits kept, s = b = 700,
+    /// no reachability repair for any method), no approach to contact (the hand
+    /// closes at the planned pose, see [`executed_palm`]) and collisions of the
+    /// open hand fail (the observer's rule) and are counted per method.
     pub paper: bool,
 }
 
@@ -590,6 +587,12 @@ pub fn run_novel(
     );
     let motions = ExecutorConfig::from_cell(cell.config);
     let approach = (!options.paper).then(|| ApproachOptions::from_cell(cell.config));
+    let protocol = if options.paper {
+        Protocol::PaperRobot
+    } else {
+        Protocol::Cell
+    };
+    let register = register_params(protocol);
     let mut trials = Vec::new();
     for (o, object) in objects.iter().enumerate() {
         let category = &models[&object.category];
@@ -623,6 +626,7 @@ pub fn run_novel(
                 &calibrated,
                 &segment,
                 &category.models,
+                &register,
                 register_seed,
             )
             .map_err(|e| object_fail(format!("perception: {e}")))?;
@@ -640,7 +644,8 @@ pub fn run_novel(
                 for method in &options.methods {
                     let started = std::time::Instant::now();
                     let request = TrialRequest::new(unit, 0, object.category.name(), task, method)
-                        .map_err(|e| object_fail(e.to_string()))?;
+                        .map_err(|e| object_fail(e.to_string()))?
+                        .with_protocol(protocol);
                     // 3. Planning as the plan stage does it.
                     let planned = plan_trial(cell.config, &cell.robot, dbs, &request, &fits)
                         .and_then(|mut g| {

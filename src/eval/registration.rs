@@ -39,10 +39,12 @@ impl CategoryRegistrar {
         self
     }
 
-    /// Keeps registrations under the inlier threshold as fits with their `eps`
-    /// ([`RegisterParams::keep_poor_fits`]), as the paper's mode wants.
-    pub fn keep_poor_fits(mut self, keep: bool) -> CategoryRegistrar {
-        self.params.keep_poor_fits = keep;
+    /// With `paper`, scores fits as the paper did ([`RegisterParams::paper`]:
+    /// one-sided, poor registrations kept).
+    pub fn paper(mut self, paper: bool) -> CategoryRegistrar {
+        if paper {
+            self.params = self.params.paper();
+        }
         self
     }
 }

@@ -95,6 +95,43 @@ coded_enum!(
 );
 
 coded_enum!(
+    /// Whose settings a trial's perception and planning use (issue 19): the cell's,
+    /// or the paper's ([`crate::plan::PlanMode`], [`crate::register::RegisterParams::paper`]).
+    Protocol, "trial request protocol", {
+        /// The cell's own: two-sided fit score, its kernels, reachability repair for
+        /// every method.
+        Cell = 0,
+        /// The paper's simulation setting (s = b = 50), one-sided fit score, poor fits
+        /// kept, no repair.
+        PaperSimulation = 1,
+        /// The paper's robot setting (Table 2: s = b = 700), otherwise as
+        /// `PaperSimulation`.
+        PaperRobot = 2,
+    }
+);
+
+impl Protocol {
+    /// The planner's mode of this protocol.
+    pub fn plan_mode(self) -> crate::plan::PlanMode {
+        use crate::plan::{PaperProtocol, PlanMode};
+        match self {
+            Protocol::Cell => PlanMode::Cell,
+            Protocol::PaperSimulation => PlanMode::Paper {
+                protocol: PaperProtocol::Simulation,
+            },
+            Protocol::PaperRobot => PlanMode::Paper {
+                protocol: PaperProtocol::Robot,
+            },
+        }
+    }
+
+    /// Whether this is one of the paper's settings.
+    pub fn is_paper(self) -> bool {
+        self != Protocol::Cell
+    }
+}
+
+coded_enum!(
     /// Outcome of registering one model to the observed object.
     FitStatus, "fit status", {
         /// ICP converged; the fit is usable.
@@ -331,6 +368,7 @@ pub struct TrialRequest {
     category: Name,
     task: Name,
     method: Name,
+    protocol: u32,
 }
 message!(TrialRequest, Topic::TrialRequest);
 
@@ -349,7 +387,19 @@ impl TrialRequest {
             category: Name::new("trial request category", category)?,
             task: Name::new("trial request task", task)?,
             method: Name::new("trial request method", method)?,
+            protocol: Protocol::Cell.code(),
         })
+    }
+
+    /// The same request under `protocol` (a new request is the cell's).
+    pub fn with_protocol(mut self, protocol: Protocol) -> TrialRequest {
+        self.protocol = protocol.code();
+        self
+    }
+
+    /// Whose settings perception and planning use.
+    pub fn protocol(&self) -> Result<Protocol, IpcError> {
+        Protocol::from_code(self.protocol)
     }
 
     /// Object category (`mug`, `bottle`, ...).
@@ -966,6 +1016,32 @@ mod tests {
     use std::mem::{align_of, size_of};
 
     #[test]
+    fn a_request_is_the_cells_unless_given_the_papers_protocol() {
+        let r = TrialRequest::new(7, 11, "mug", "handle", "laplace").unwrap();
+        assert_eq!(r.protocol().unwrap(), Protocol::Cell);
+        assert_eq!(
+            r.protocol().unwrap().plan_mode(),
+            crate::plan::PlanMode::Cell
+        );
+        let paper = r.with_protocol(Protocol::PaperRobot);
+        assert!(paper.protocol().unwrap().is_paper());
+        assert_eq!(
+            paper.protocol().unwrap().plan_mode(),
+            crate::plan::PlanMode::Paper {
+                protocol: crate::plan::PaperProtocol::Robot
+            }
+        );
+        let garbled = TrialRequest {
+            protocol: 7,
+            ..paper
+        };
+        assert!(matches!(
+            garbled.protocol(),
+            Err(IpcError::UnknownCode { code: 7, .. })
+        ));
+    }
+
+    #[test]
     fn names_round_trip_and_limits_are_enforced() {
         let r = TrialRequest::new(7, 11, "mug", "handle", "laplace").unwrap();
         assert_eq!(
@@ -1167,7 +1243,8 @@ mod tests {
         assert_eq!(align_of::<Point>(), 4);
         assert_eq!(size_of::<PoseMatrix>(), 128);
         assert_eq!(size_of::<CloudHeader>(), 8 + 8 + 4 + 4 + 32 + 4 + 4 + 128);
-        assert_eq!(size_of::<TrialRequest>(), 16 + 3 * 32);
+        // The protocol code (4 bytes) and padding to the 8-byte alignment.
+        assert_eq!(size_of::<TrialRequest>(), 16 + 3 * 32 + 8);
         assert_eq!(size_of::<ModelFit>(), 8 + 128 + 24);
         assert_eq!(size_of::<Fits>(), 24 + 32 * 160);
         assert_eq!(size_of::<JointState>(), 11 * 8);

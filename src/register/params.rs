@@ -184,6 +184,17 @@ impl Default for RegisterParams {
 }
 
 impl RegisterParams {
+    /// These parameters scored as the paper did (issue 19's `--paper`): the
+    /// one-sided `eps` and `sigma`, and poor registrations kept as fits, so that the
+    /// fit weight rather than a threshold turns them down.
+    pub fn paper(self) -> RegisterParams {
+        RegisterParams {
+            fit_score: FitScore::OneSided,
+            keep_poor_fits: true,
+            ..self
+        }
+    }
+
     /// Checks that every length is positive and every count usable.
     pub fn check(&self) -> Result<(), RegisterError> {
         let positive = [
@@ -272,6 +283,25 @@ mod tests {
     #[test]
     fn defaults_pass_the_check() {
         RegisterParams::default().check().unwrap();
+    }
+
+    #[test]
+    fn the_papers_scoring_is_one_sided_and_keeps_poor_fits() {
+        let ours = RegisterParams::default();
+        assert_eq!(
+            (ours.fit_score, ours.keep_poor_fits),
+            (FitScore::TwoSided, false)
+        );
+        let paper = RegisterParams {
+            model_points: 500,
+            ..ours
+        }
+        .paper();
+        assert_eq!(
+            (paper.fit_score, paper.keep_poor_fits),
+            (FitScore::OneSided, true)
+        );
+        assert_eq!(paper.model_points, 500, "the rest is kept");
     }
 
     #[test]
