@@ -1374,14 +1374,14 @@ mod tests {
         let err = parse_err(list);
         assert!(
             err.contains(
-                "element `f` row 0, byte offset 82: file ends (truncated) inside this row"
+                "element `f` row 0, byte offset 87: file ends (truncated) inside this row"
             ),
             "{err}"
         );
         let rows = b"ply\nformat binary_big_endian 1.0\nelement v 4611686018427387904\nproperty double x\nproperty double y\nend_header\n\0";
         let err = parse_err(rows);
         assert!(
-            err.contains("element `v` row 0, byte offset 111: file ends (truncated): 4611686018427387904 rows of 16 bytes declared, 1 bytes remain"),
+            err.contains("element `v` row 0, byte offset 110: file ends (truncated): 4611686018427387904 rows of 16 bytes declared, 1 bytes remain"),
             "{err}"
         );
         let ascii = b"ply\nformat ascii 1.0\nelement f 18446744073709551615\nproperty list uint uchar i\nend_header\n4294967295 1 2\n";
