@@ -1233,6 +1233,47 @@ mod tests {
     }
 
     #[test]
+    fn received_fits_and_joint_states_with_nan_are_refused() {
+        let pose = pose_from_params(&[0.1, 0.2, 0.3, 0.0, 0.0, 1.0]);
+        let good = ModelFit::new(0, FitStatus::Converged, &pose, 1e-6, 1e-7, 0.9);
+        good.check().unwrap();
+        let nan = ModelFit::new(0, FitStatus::Converged, &pose, f64::NAN, 1e-7, 0.9);
+        assert!(nan.check().unwrap_err().to_string().contains("eps"));
+        let negative = ModelFit::new(0, FitStatus::Converged, &pose, 1e-6, -1.0, 0.9);
+        assert!(negative.check().unwrap_err().to_string().contains("fit sigma"));
+        let mut bad_pose = good;
+        bad_pose.base_from_model.rows[0][0] = f64::NAN;
+        assert!(bad_pose.check().is_err());
+        let mut joints = JointState::default();
+        joints.check().unwrap();
+        joints.arm_rad[3] = f64::INFINITY;
+        let err = joints.check().unwrap_err().to_string();
+        assert!(err.contains("arm_rad"), "{err}");
+        joints.arm_rad[3] = 0.0;
+        joints.hand_rad[1] = f64::NAN;
+        assert!(joints.check().unwrap_err().to_string().contains("hand_rad"));
+    }
+
+    #[test]
+    fn wire_bytes_are_read_as_the_message_they_encode() {
+        let request = TrialRequest::new(7, 11, "mug", "handle", "laplace").unwrap();
+        // SAFETY (test): reads the bytes of a plain-data message with no padding.
+        let bytes = unsafe {
+            std::slice::from_raw_parts(
+                (&request as *const TrialRequest).cast::<u8>(),
+                size_of::<TrialRequest>(),
+            )
+        };
+        assert_eq!(from_wire_bytes::<TrialRequest>(bytes), request);
+        // Short input is zero-padded, long input cut.
+        let short: TrialRequest = from_wire_bytes(&bytes[..16]);
+        assert_eq!((short.trial_id, short.stamp_ns), (7, 11));
+        assert_eq!(short.category().unwrap(), "");
+        let long = [bytes, &[0xff; 64][..]].concat();
+        assert_eq!(from_wire_bytes::<TrialRequest>(&long), request);
+    }
+
+    #[test]
     fn layouts_are_fixed() {
         // Sizes as laid out by repr(C) by hand; a change breaks other processes.
         assert_eq!(size_of::<Point>(), 12);
