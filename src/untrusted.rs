@@ -72,30 +72,28 @@ pub fn decode(target: &str, bytes: &[u8]) -> Result<(), String> {
         "ipc" => decode_payload(bytes),
         "urdf" => {
             let joints = &builtin_config().robot.arm_joints;
-            crate::robot::description::RobotDescription::parse(&text()?, &path("in.urdf"), joints)
+            crate::robot::description::RobotDescription::parse(text()?, &path("in.urdf"), joints)
                 .map(drop)
                 .map_err(text_of)
         }
-        "cell_toml" => CellConfig::parse(&text()?, &path("cell.toml"))
+        "cell_toml" => CellConfig::parse(text()?, &path("cell.toml"))
             .map(drop)
             .map_err(text_of),
         "scene_toml" => {
-            crate::sim::scene::parse_scene(&text()?, &path("scene.toml"), builtin_config())
+            crate::sim::scene::parse_scene(text()?, &path("scene.toml"), builtin_config())
                 .map(drop)
                 .map_err(text_of)
         }
-        "teach_toml" => {
-            crate::category::teach::TeachFile::parse_text(&text()?, &path("teach.toml"))
-                .map(drop)
-                .map_err(text_of)
-        }
-        "category_json" => crate::category::DatabaseFile::parse(&text()?, &path("category.json"))
+        "teach_toml" => crate::category::teach::TeachFile::parse_text(text()?, &path("teach.toml"))
             .map(drop)
             .map_err(text_of),
-        "calib_json" => crate::calib::SampleFile::parse(&text()?, &path("samples.json"))
+        "category_json" => crate::category::DatabaseFile::parse(text()?, &path("category.json"))
             .map(drop)
             .map_err(text_of),
-        "grade_csv" => crate::trial::csv::check_grades_csv(&text()?, &path("grades.csv"))
+        "calib_json" => crate::calib::SampleFile::parse(text()?, &path("samples.json"))
+            .map(drop)
+            .map_err(text_of),
+        "grade_csv" => crate::trial::csv::check_grades_csv(text()?, &path("grades.csv"))
             .map(drop)
             .map_err(text_of),
         other => Err(format!("unknown decoder `{other}` (one of {TARGETS:?})")),

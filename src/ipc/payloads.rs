@@ -1240,7 +1240,11 @@ mod tests {
         let nan = ModelFit::new(0, FitStatus::Converged, &pose, f64::NAN, 1e-7, 0.9);
         assert!(nan.check().unwrap_err().to_string().contains("eps"));
         let negative = ModelFit::new(0, FitStatus::Converged, &pose, 1e-6, -1.0, 0.9);
-        assert!(negative.check().unwrap_err().to_string().contains("fit sigma"));
+        assert!(negative
+            .check()
+            .unwrap_err()
+            .to_string()
+            .contains("fit sigma"));
         let mut bad_pose = good;
         bad_pose.base_from_model.rows[0][0] = f64::NAN;
         assert!(bad_pose.check().is_err());
