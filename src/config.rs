@@ -330,7 +330,14 @@ impl CellConfig {
                 source,
             })?
         };
-        let mut config: CellConfig = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+        Self::parse(&text, path)
+    }
+
+    /// Parses and validates configuration `text` read from `path` (which names it in
+    /// errors; relative paths become relative to it).
+    pub fn parse(text: &str, path: &Path) -> Result<CellConfig, ConfigError> {
+        let builtin = path == Path::new(BUILTIN_CONFIG);
+        let mut config: CellConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: path.to_path_buf(),
             message: e.to_string().trim().replace('\n', " "),
         })?;

@@ -33,3 +33,4 @@ pub mod sim;
 pub mod stats;
 pub mod trajectory;
 pub mod trial;
+pub mod untrusted;

@@ -812,8 +812,9 @@ fn parse_binary_body(
                     body_start + row_start
                 )
             };
-            let mut take = |size: usize| {
-                let bytes = body.get(pos..pos + size).ok_or_else(|| {
+            let mut take = |size: Option<usize>| {
+                let end = size.and_then(|size| pos.checked_add(size));
+                let bytes = end.and_then(|end| body.get(pos..end)).ok_or_else(|| {
                     (
                         location(),
                         format!(
@@ -822,14 +823,14 @@ fn parse_binary_body(
                         ),
                     )
                 })?;
-                pos += size;
+                pos += bytes.len();
                 Ok::<&[u8], (String, String)>(bytes)
             };
             for property in &mut element.properties {
                 match &mut property.column {
                     Column::Scalar(values) => {
                         let size = values.scalar_type().size();
-                        values.push_binary(take(size)?, big_endian);
+                        values.push_binary(take(Some(size))?, big_endian);
                     }
                     Column::List {
                         count_type,
@@ -837,7 +838,7 @@ fn parse_binary_body(
                         items,
                     } => {
                         let mut count = Values::with_capacity(*count_type, 1);
-                        count.push_binary(take(count_type.size())?, big_endian);
+                        count.push_binary(take(Some(count_type.size()))?, big_endian);
                         let n = list_length(&count).map_err(|problem| {
                             (
                                 location(),
@@ -845,7 +846,9 @@ fn parse_binary_body(
                             )
                         })?;
                         let size = items.scalar_type().size();
-                        let bytes = take(n * size)?;
+                        // A list length near the count type's maximum must not wrap
+                        // `n x size` to a small number of bytes.
+                        let bytes = take(n.checked_mul(size))?;
                         for chunk in bytes.chunks_exact(size) {
                             items.push_binary(chunk, big_endian);
                         }
@@ -1364,6 +1367,31 @@ mod tests {
         let huge = b"ply\nformat binary_little_endian 1.0\nelement v 4000000000000\nproperty double x\nend_header\n\0\0\0\0\0\0\0\0";
         let err = parse_err(huge);
         assert!(err.contains("element `v` row 1, byte offset"), "{err}");
+        // Issue 21's trick on the other header counts: the largest list length of
+        // the widest count type, of the widest items, and an element count that
+        // times its row size passes usize, fail on truncation with row and offset.
+        let list = b"ply\nformat binary_little_endian 1.0\nelement f 1\nproperty list uint double i\nend_header\n\xff\xff\xff\xff\0\0\0\0\0\0\0\0";
+        let err = parse_err(list);
+        assert!(
+            err.contains(
+                "element `f` row 0, byte offset 87: file ends (truncated) inside this row"
+            ),
+            "{err}"
+        );
+        let rows = b"ply\nformat binary_big_endian 1.0\nelement v 4611686018427387904\nproperty double x\nproperty double y\nend_header\n\0";
+        let err = parse_err(rows);
+        assert!(
+            err.contains("element `v` row 0, byte offset 110: file ends (truncated): 4611686018427387904 rows of 16 bytes declared, 1 bytes remain"),
+            "{err}"
+        );
+        let ascii = b"ply\nformat ascii 1.0\nelement f 18446744073709551615\nproperty list uint uchar i\nend_header\n4294967295 1 2\n";
+        let err = parse_err(ascii);
+        assert!(
+            err.contains(
+                "line 6: element `f` row 0: line ends after 3 values, missing an item of `i`"
+            ),
+            "{err}"
+        );
         // Negative list lengths in a signed count type are caught.
         let neg = b"ply\nformat binary_little_endian 1.0\nelement f 1\nproperty list char int i\nend_header\n\xff";
         let err = parse_err(neg);

@@ -11,6 +11,7 @@ mod common;
 mod eval;
 mod execute;
 mod fri;
+mod fuzz_regressions;
 mod grasp;
 mod ipc;
 #[cfg(feature = "kinect")]

@@ -327,25 +327,7 @@ impl CategoryDb {
             path: path.clone(),
             source,
         })?;
-        let value: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| CategoryError::Parse {
-                path: path.clone(),
-                message: e.to_string(),
-            })?;
-        let found = value.get("format").and_then(|v| v.as_u64()).unwrap_or(0) as u32;
-        if found != FORMAT_VERSION {
-            return Err(CategoryError::Format {
-                path,
-                found,
-                expected: FORMAT_VERSION,
-            });
-        }
-        let file: DatabaseFile =
-            serde_json::from_value(value).map_err(|e| CategoryError::Parse {
-                path: path.clone(),
-                message: e.to_string(),
-            })?;
-        file.validate(&path)?;
+        let file = DatabaseFile::parse(&text, &path)?;
         let meshes = file
             .models
             .iter()
@@ -406,6 +388,31 @@ impl GraspEntry {
 }
 
 impl DatabaseFile {
+    /// Parses and validates `category.json` text read from `path` (which names it in
+    /// errors); the meshes are not loaded.
+    pub fn parse(text: &str, path: &Path) -> Result<DatabaseFile, CategoryError> {
+        let value: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| CategoryError::Parse {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })?;
+        let found = value.get("format").and_then(|v| v.as_u64()).unwrap_or(0);
+        if found != u64::from(FORMAT_VERSION) {
+            return Err(CategoryError::Format {
+                path: path.to_path_buf(),
+                found: u32::try_from(found).unwrap_or(u32::MAX),
+                expected: FORMAT_VERSION,
+            });
+        }
+        let file: DatabaseFile =
+            serde_json::from_value(value).map_err(|e| CategoryError::Parse {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })?;
+        file.validate(path)?;
+        Ok(file)
+    }
+
     /// Checks the content; `path` names the file in errors.
     pub fn validate(&self, path: &Path) -> Result<(), CategoryError> {
         let invalid = |what: String, field: &str, value: String, problem: &str| {

@@ -104,7 +104,12 @@ impl TeachFile {
             path: path.to_path_buf(),
             source,
         })?;
-        toml::from_str(&text).map_err(|e| CategoryError::Parse {
+        Self::parse_text(&text, path)
+    }
+
+    /// Parses teach-in `text` read from `path` (which names it in errors).
+    pub fn parse_text(text: &str, path: &Path) -> Result<TeachFile, CategoryError> {
+        toml::from_str(text).map_err(|e| CategoryError::Parse {
             path: path.to_path_buf(),
             message: e.to_string().trim_end().replace('\n', " "),
         })

@@ -91,6 +91,7 @@ pub fn planner_fits(db: &CategoryDb, fits: &Fits) -> Result<Vec<ModelFit>, CellE
         if fit.status()? == FitStatus::Failed {
             continue;
         }
+        fit.check()?;
         let Some(model) = db.file.models.get(fit.model_id as usize) else {
             return Err(CellError::Invalid(format!(
                 "fit of model {} but the {} database has {} models",
@@ -360,7 +361,10 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
             pending.input(f.trial_id, f);
         }
         while let Some(j) = joints_sub.try_receive()? {
-            arm_now = j.joints.arm_rad;
+            match j.joints.check() {
+                Ok(()) => arm_now = j.joints.arm_rad,
+                Err(e) => tracing::warn!("joint state ignored: {e}"),
+            }
         }
         for (request, fits) in pending.take_ready() {
             let trial_id = request.trial_id;

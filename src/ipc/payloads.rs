@@ -30,6 +30,51 @@ pub const ARM_JOINTS: usize = 7;
 /// Hand joints of the BH8-282: finger 1, finger 2, finger 3 (inner link), spread.
 pub const HAND_JOINTS: usize = 4;
 
+/// A message as a receiver sees it in shared memory: `bytes` copied over a default
+/// message (zero-padded if short, extra bytes ignored). For tests and fuzzing of the
+/// checks a stage does on receipt.
+pub fn from_wire_bytes<M: AnyBitPattern>(bytes: &[u8]) -> M {
+    let mut message = M::default();
+    let len = bytes.len().min(std::mem::size_of::<M>());
+    // SAFETY: `M: AnyBitPattern`, so every bit pattern is a valid `M`; `len` is at
+    // most the size of `M`, and `bytes` cannot overlap the local `message`.
+    unsafe {
+        std::ptr::copy_nonoverlapping(bytes.as_ptr(), (&mut message as *mut M).cast::<u8>(), len);
+    }
+    message
+}
+
+/// A payload in which every bit pattern is a valid value.
+///
+/// # Safety
+///
+/// Implement only for `#[repr(C)]` types made of integers, floats and arrays or
+/// structs of them (no `bool`, enumeration, reference or pointer).
+pub unsafe trait AnyBitPattern: Copy + Default {}
+
+// SAFETY: each is `#[repr(C)]` plain data made only of integers, floats and arrays
+// of them; codes, flags and text are stored as integers and bytes and read through
+// checked accessors.
+unsafe impl AnyBitPattern for TrialRequest {}
+// SAFETY: as above.
+unsafe impl AnyBitPattern for CloudHeader {}
+// SAFETY: as above.
+unsafe impl AnyBitPattern for Fits {}
+// SAFETY: as above.
+unsafe impl AnyBitPattern for GraspPlan {}
+// SAFETY: as above.
+unsafe impl AnyBitPattern for JointStates {}
+// SAFETY: as above.
+unsafe impl AnyBitPattern for ExecutionStatus {}
+// SAFETY: as above.
+unsafe impl AnyBitPattern for TrialResult {}
+// SAFETY: as above.
+unsafe impl AnyBitPattern for CameraStatus {}
+// SAFETY: as above.
+unsafe impl AnyBitPattern for CloudAck {}
+// SAFETY: as above.
+unsafe impl AnyBitPattern for Point {}
+
 /// A message of a topic (every payload except point clouds).
 pub trait Message: Debug + Copy + ZeroCopySend + 'static {
     /// The topic that carries this message.
@@ -615,6 +660,23 @@ impl ModelFit {
     pub fn status(&self) -> Result<FitStatus, IpcError> {
         FitStatus::from_code(self.status)
     }
+
+    /// Checks a received fit: a known status, a rigid pose and finite, non-negative
+    /// errors (a NaN `eps` would otherwise win or poison the planner's weights).
+    pub fn check(&self) -> Result<(), IpcError> {
+        self.status()?;
+        self.base_from_model.to_pose("fit base_from_model")?;
+        check_finite(
+            &[self.eps, self.sigma, self.inlier_fraction],
+            "fit eps, sigma, inlier fraction",
+        )?;
+        for (field, value) in [("fit eps", self.eps), ("fit sigma", self.sigma)] {
+            if value < 0.0 {
+                return Err(IpcError::NotPositive { field, value });
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Perception -> planner: the fits of every model of the category (up to 32).
@@ -776,6 +838,16 @@ pub struct JointState {
     pub arm_rad: [f64; ARM_JOINTS],
     /// Hand finger 1, finger 2, finger 3 (inner link), spread (rad).
     pub hand_rad: [f64; HAND_JOINTS],
+}
+
+impl JointState {
+    /// Checks that every angle is finite (a received state with NaN must not become
+    /// the arm's current position).
+    pub fn check(&self) -> Result<(), IpcError> {
+        check_finite(&self.arm_rad, "joint state arm_rad")?;
+        check_finite(&self.hand_rad, "joint state hand_rad")?;
+        Ok(())
+    }
 }
 
 /// Executor -> anyone: the measured joint angles.
@@ -1234,6 +1306,51 @@ mod tests {
             msg.fits().unwrap()[2].status().unwrap(),
             FitStatus::Converged
         );
+    }
+
+    #[test]
+    fn received_fits_and_joint_states_with_nan_are_refused() {
+        let pose = pose_from_params(&[0.1, 0.2, 0.3, 0.0, 0.0, 1.0]);
+        let good = ModelFit::new(0, FitStatus::Converged, &pose, 1e-6, 1e-7, 0.9);
+        good.check().unwrap();
+        let nan = ModelFit::new(0, FitStatus::Converged, &pose, f64::NAN, 1e-7, 0.9);
+        assert!(nan.check().unwrap_err().to_string().contains("eps"));
+        let negative = ModelFit::new(0, FitStatus::Converged, &pose, 1e-6, -1.0, 0.9);
+        assert!(negative
+            .check()
+            .unwrap_err()
+            .to_string()
+            .contains("fit sigma"));
+        let mut bad_pose = good;
+        bad_pose.base_from_model.rows[0][0] = f64::NAN;
+        assert!(bad_pose.check().is_err());
+        let mut joints = JointState::default();
+        joints.check().unwrap();
+        joints.arm_rad[3] = f64::INFINITY;
+        let err = joints.check().unwrap_err().to_string();
+        assert!(err.contains("arm_rad"), "{err}");
+        joints.arm_rad[3] = 0.0;
+        joints.hand_rad[1] = f64::NAN;
+        assert!(joints.check().unwrap_err().to_string().contains("hand_rad"));
+    }
+
+    #[test]
+    fn wire_bytes_are_read_as_the_message_they_encode() {
+        let request = TrialRequest::new(7, 11, "mug", "handle", "laplace").unwrap();
+        // SAFETY (test): reads the bytes of a plain-data message with no padding.
+        let bytes = unsafe {
+            std::slice::from_raw_parts(
+                (&request as *const TrialRequest).cast::<u8>(),
+                size_of::<TrialRequest>(),
+            )
+        };
+        assert_eq!(from_wire_bytes::<TrialRequest>(bytes), request);
+        // Short input is zero-padded, long input cut.
+        let short: TrialRequest = from_wire_bytes(&bytes[..16]);
+        assert_eq!((short.trial_id, short.stamp_ns), (7, 11));
+        assert_eq!(short.category().unwrap(), "");
+        let long = [bytes, &[0xff; 64][..]].concat();
+        assert_eq!(from_wire_bytes::<TrialRequest>(&long), request);
     }
 
     #[test]

@@ -189,6 +189,27 @@ mod tests {
                 "vertex 7",
             ),
             ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 a/1\n", "line 4", "\"a\""),
+            // Issue 21's trick on indices: the extremes of u32 and i64.
+            (
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4294967296\n",
+                "line 4",
+                "vertex 4294967296 but the file has only 3",
+            ),
+            (
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4294967297\n",
+                "line 4",
+                "vertex index 4294967297 is too large",
+            ),
+            (
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -9223372036854775808\n",
+                "line 4",
+                "before the first",
+            ),
+            (
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9223372036854775808\n",
+                "line 4",
+                "not an integer",
+            ),
         ];
         for (text, line, problem) in cases {
             let err = parse(text).unwrap_err().to_string();

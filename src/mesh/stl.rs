@@ -413,6 +413,8 @@ mod tests {
         let cases: Vec<(&str, Vec<u8>, &str)> = vec![
             ("trunc.stl", binary[..binary.len() - 60].to_vec(), "facet 10, byte offset 584: file ends (truncated): the header declares 12 triangles (684 bytes), the file has 624 bytes"),
             ("long.stl", [&binary[..], &[0u8; 3]].concat(), "byte offset 684: 3 bytes after the 12 triangles"),
+            // Issue 21's trick on the triangle count: the largest count, one record.
+            ("count.stl", [&binary[..80], &u32::MAX.to_le_bytes()[..], &binary[84..134]].concat(), "facet 1, byte offset 134: file ends (truncated): the header declares 4294967295 triangles (214748364834 bytes), the file has 134 bytes"),
             ("short.stl", b"garbage".to_vec(), "header: 7 bytes: not ASCII STL"),
             ("nan.stl", nan, "facet 3, byte offset 234: non-finite vertex coordinate NaN"),
             ("empty.stl", [&binary[..80], &0u32.to_le_bytes()[..]].concat(), "mesh is empty (0 vertices, 0 triangles)"),

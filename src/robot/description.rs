@@ -130,7 +130,16 @@ impl RobotDescription {
                 source,
             })?
         };
-        let urdf = urdf_rs::read_from_string(&text).map_err(|e| RobotError::Urdf {
+        Self::parse(&text, path, arm_joints)
+    }
+
+    /// Parses and validates URDF `text` read from `path` (which names it in errors).
+    pub fn parse(
+        text: &str,
+        path: &Path,
+        arm_joints: &[String],
+    ) -> Result<RobotDescription, RobotError> {
+        let urdf = urdf_rs::read_from_string(text).map_err(|e| RobotError::Urdf {
             path: path.to_path_buf(),
             problem: e.to_string().replace('\n', " "),
         })?;

@@ -269,7 +269,17 @@ pub fn load_scene(path: &Path, config: &CellConfig) -> Result<LoadedScene, Scene
         path: path.to_path_buf(),
         error,
     })?;
-    let file: SceneFile = toml::from_str(&text).map_err(|e| SceneError::Parse {
+    parse_scene(&text, path, config)
+}
+
+/// Parses scene `text` read from `path` (which names it in errors; object meshes are
+/// relative to it); tables and camera pose default to `config`'s.
+pub fn parse_scene(
+    text: &str,
+    path: &Path,
+    config: &CellConfig,
+) -> Result<LoadedScene, SceneError> {
+    let file: SceneFile = toml::from_str(text).map_err(|e| SceneError::Parse {
         path: path.to_path_buf(),
         message: e.to_string().trim().replace('\n', " "),
     })?;

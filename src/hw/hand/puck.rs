@@ -607,6 +607,33 @@ mod tests {
     }
 
     #[test]
+    fn frames_of_every_length_are_decoded_or_refused_by_length() {
+        // A frame's length comes from the bus (0 to 8 bytes): each decoder accepts
+        // its lengths and names the others, never indexing past the data.
+        for len in 0..=8 {
+            let data = vec![0x80; len];
+            let request = decode_request(&data);
+            assert_eq!(
+                matches!(request, Err(PuckFrameError::Length { .. })),
+                !matches!(len, 1 | 4 | 6),
+                "{len}"
+            );
+            let reply = decode_property_reply(&data);
+            assert_eq!(
+                matches!(reply, Err(PuckFrameError::Length { .. })),
+                !matches!(len, 4 | 6),
+                "{len}"
+            );
+            let position = decode_position(&data);
+            assert_eq!(
+                matches!(position, Err(PuckFrameError::Length { .. })),
+                !matches!(len, 3 | 6),
+                "{len}"
+            );
+        }
+    }
+
+    #[test]
     fn property_table_is_consistent() {
         for &p in Property::ALL {
             assert_eq!(Property::from_id(p.id()), Some(p));

@@ -1,0 +1,6 @@
+//! Fuzz target: the `ipc` decoder of `graspcell::untrusted`.
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    let _ = graspcell::untrusted::decode("ipc", data);
+});

@@ -1,0 +1,6 @@
+//! Fuzz target: the `stl` decoder of `graspcell::untrusted`.
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    let _ = graspcell::untrusted::decode("stl", data);
+});
