@@ -251,6 +251,11 @@ pub struct FriConfig {
     pub backend: String,
     /// Local UDP address the driver binds (FRI default port 49938).
     pub bind_addr: String,
+    /// The robot controller (KRC): its IP address (any port) or address with port.
+    /// The driver answers nobody else: datagrams from other senders are dropped,
+    /// counted and never answered. Required; the shipped value is the simulator's
+    /// host (127.0.0.1).
+    pub robot_addr: String,
     /// Measurement period the KRL program requests (s).
     pub cycle_s: f64,
     /// A missing measurement for this long stops the executor (s).
@@ -462,6 +467,16 @@ impl CellConfig {
                 "use sim or hardware",
             ));
         }
+        let robot_addr = self.fri.robot_addr.trim();
+        if robot_addr.parse::<std::net::SocketAddr>().is_err()
+            && robot_addr.parse::<std::net::IpAddr>().is_err()
+        {
+            return Err(invalid(
+                "fri.robot_addr",
+                self.fri.robot_addr.clone(),
+                "must be the robot controller's IP address, or address:port (e.g. 192.168.0.10)",
+            ));
+        }
         self.camera
             .base_from_camera
             .to_pose("camera.base_from_camera")
@@ -537,6 +552,33 @@ mod tests {
         std::fs::write(&bad, text.replace("cycle_s = 0.002", "cycle_s = -1.0")).unwrap();
         let err = CellConfig::load(&bad).unwrap_err().to_string();
         assert!(err.contains("fri.cycle_s"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn the_robot_controller_address_is_required_and_checked() {
+        let text = std::fs::read_to_string(shipped()).unwrap();
+        assert!(CellConfig::load(&shipped()).unwrap().fri.robot_addr == "127.0.0.1");
+        let dir = std::env::temp_dir().join(format!("graspcell-robot-addr-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let load = |name: &str, text: String| {
+            let path = dir.join(name);
+            std::fs::write(&path, text).unwrap();
+            CellConfig::load(&path)
+        };
+        let line = "robot_addr = \"127.0.0.1\"";
+        assert!(text.contains(line));
+        let err = load("missing.toml", text.replace(line, "")).unwrap_err();
+        assert!(err.to_string().contains("robot_addr"), "{err}");
+        let err = load("bad.toml", text.replace(line, "robot_addr = \"krc\"")).unwrap_err();
+        assert!(err.to_string().contains("fri.robot_addr = krc"), "{err}");
+        for ok in ["192.168.0.10", "192.168.0.10:49938", "[::1]:49938"] {
+            let config = load(
+                "ok.toml",
+                text.replace(line, &format!("robot_addr = \"{ok}\"")),
+            );
+            assert_eq!(config.unwrap().fri.robot_addr, ok);
+        }
         std::fs::remove_dir_all(&dir).ok();
     }
 }

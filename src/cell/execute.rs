@@ -107,6 +107,8 @@ pub fn execution_request(plan: &GraspPlan) -> Result<ExecutionRequest, CellError
 pub struct ExecuteOptions {
     /// Local UDP address of the FRI driver (overrides `fri.bind_addr`).
     pub fri_bind: Option<String>,
+    /// The robot controller the FRI driver answers (overrides `fri.robot_addr`).
+    pub fri_robot: Option<String>,
     /// CAN interface (overrides `can.interface`).
     pub can_interface: Option<String>,
     /// How long the lifted object is held (s).
@@ -137,6 +139,9 @@ pub fn run(
     let mut fri = config.fri.clone();
     if let Some(bind) = &options.fri_bind {
         fri.bind_addr = bind.clone();
+    }
+    if let Some(robot) = &options.fri_robot {
+        fri.robot_addr = robot.clone();
     }
     let device = |device: &'static str| {
         move |e: &dyn std::fmt::Display| CellError::Device {
@@ -178,7 +183,7 @@ pub fn run(
     // Subscribed last: the harness counts request subscribers to know the cell is up.
     let requests = stage.subscriber::<TrialRequest>()?;
     notify::ready("execute waiting for grasp plans");
-    tracing::info!(fri = %fri.bind_addr, can = %interface, "executor ready");
+    tracing::info!(fri = %fri.bind_addr, robot = %driver_config.robot, can = %interface, "executor ready");
     let mut watchdog = Watchdog::from_env();
     let joints_now = |driver: &FriDriver| JointState {
         arm_rad: driver.status().measured_rad,

@@ -92,6 +92,8 @@ pub struct Cell {
     stages: Vec<Process>,
     sims: Vec<Process>,
     fri_addr: String,
+    /// The simulated robot's own address (`None` on hardware: `fri.robot_addr`).
+    fri_robot_addr: Option<String>,
     fri_cycle_s: f64,
     can_interface: String,
     operator: Option<Operator>,
@@ -196,13 +198,25 @@ impl Cell {
             std::process::id(),
             domain.prefix().trim_end_matches('_')
         );
-        let (fri_addr, can_interface) = if options.simulated_devices {
+        // With simulated devices the executor's driver answers exactly the arm
+        // simulator's address and port (pinned, as `fri.robot_addr` pins the KRC).
+        let (fri_addr, fri_robot_addr, can_interface) = if options.simulated_devices {
+            let pc_port = free_udp_port()?;
+            let mut robot_port = free_udp_port()?;
+            while robot_port == pc_port {
+                robot_port = free_udp_port()?;
+            }
             (
-                format!("127.0.0.1:{}", free_udp_port()?),
+                format!("127.0.0.1:{pc_port}"),
+                Some(format!("127.0.0.1:{robot_port}")),
                 format!("virtual:cell-{tag}"),
             )
         } else {
-            (config.fri.bind_addr.clone(), config.can.interface.clone())
+            (
+                config.fri.bind_addr.clone(),
+                None,
+                config.can.interface.clone(),
+            )
         };
         let mut cell = Cell {
             options,
@@ -210,6 +224,7 @@ impl Cell {
             stages: Vec::new(),
             sims: Vec::new(),
             fri_addr,
+            fri_robot_addr,
             fri_cycle_s: config.fri.cycle_s,
             can_interface,
             operator: None,
@@ -291,6 +306,10 @@ impl Cell {
             let arm_args = vec![
                 "--pc-addr".to_string(),
                 self.fri_addr.clone(),
+                "--bind".into(),
+                self.fri_robot_addr
+                    .clone()
+                    .unwrap_or_else(|| "127.0.0.1:0".into()),
                 "--initial-joints".into(),
                 home.join(","),
                 "--cycle-ms".into(),
@@ -378,14 +397,19 @@ impl Cell {
             "perceive" | "plan" => {
                 args.extend(["--db-dir".into(), self.options.db_dir.display().to_string()])
             }
-            "execute" => args.extend([
-                "--fri-bind".into(),
-                self.fri_addr.clone(),
-                "--can-interface".into(),
-                self.can_interface.clone(),
-                "--hold-s".into(),
-                self.options.hold_s.to_string(),
-            ]),
+            "execute" => {
+                args.extend([
+                    "--fri-bind".into(),
+                    self.fri_addr.clone(),
+                    "--can-interface".into(),
+                    self.can_interface.clone(),
+                    "--hold-s".into(),
+                    self.options.hold_s.to_string(),
+                ]);
+                if let Some(robot) = &self.fri_robot_addr {
+                    args.extend(["--fri-robot".into(), robot.clone()]);
+                }
+            }
             "log" => args.extend([
                 "--log".into(),
                 self.options.log_path.display().to_string(),
