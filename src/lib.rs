@@ -31,5 +31,6 @@ pub mod robot;
 pub mod serve;
 pub mod sim;
 pub mod stats;
+pub mod sys;
 pub mod trajectory;
 pub mod trial;

@@ -166,10 +166,11 @@ fn check_binaries(options: &HarnessOptions) -> Result<(), CellError> {
     })
 }
 
-fn signal(child: &Child, sig: libc::c_int) {
-    // SAFETY: kill(2) on the id of our own child; no memory is involved.
-    unsafe {
-        libc::kill(child.id() as libc::pid_t, sig);
+/// Asks `child` to stop (SIGTERM), unless it has already been reaped (its PID may
+/// then be another process's).
+fn terminate(process: &mut Process) {
+    if let Err(e) = crate::sys::terminate_child(&mut process.child) {
+        tracing::warn!(process = %process.name, "cannot send SIGTERM: {e}");
     }
 }
 
@@ -595,16 +596,16 @@ impl Cell {
 
     fn shutdown(&mut self) {
         self.operator = None;
-        for p in &self.stages {
-            signal(&p.child, libc::SIGTERM);
+        for p in &mut self.stages {
+            terminate(p);
         }
         for p in &mut self.stages {
             if !reap(&mut p.child, Duration::from_secs(10)) {
                 tracing::warn!(stage = %p.name, "did not stop on SIGTERM: killed");
             }
         }
-        for p in &self.sims {
-            signal(&p.child, libc::SIGTERM);
+        for p in &mut self.sims {
+            terminate(p);
         }
         for p in &mut self.sims {
             reap(&mut p.child, Duration::from_secs(5));
