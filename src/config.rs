@@ -365,6 +365,17 @@ impl CellConfig {
             value,
             problem: problem.to_string(),
         };
+        // TOML spells nan and inf: no number anywhere in the file may be either.
+        if let Some((field, value)) = toml::Value::try_from(self)
+            .ok()
+            .and_then(|v| non_finite_number(&v, ""))
+        {
+            return Err(invalid(
+                &field,
+                value.to_string(),
+                "must be a finite number",
+            ));
+        }
         let positive = [
             ("table.extent_xy_m[0]", self.table.extent_xy_m[0]),
             ("table.extent_xy_m[1]", self.table.extent_xy_m[1]),
@@ -485,6 +496,27 @@ impl CellConfig {
     }
 }
 
+/// The first NaN or infinite number in `value` and its path (`table.height_m`,
+/// `workspace.min_m[2]`).
+fn non_finite_number(value: &toml::Value, path: &str) -> Option<(String, f64)> {
+    match value {
+        toml::Value::Float(f) if !f.is_finite() => Some((path.to_string(), *f)),
+        toml::Value::Array(items) => items
+            .iter()
+            .enumerate()
+            .find_map(|(i, v)| non_finite_number(v, &format!("{path}[{i}]"))),
+        toml::Value::Table(table) => table.iter().find_map(|(key, v)| {
+            let path = if path.is_empty() {
+                key.clone()
+            } else {
+                format!("{path}.{key}")
+            };
+            non_finite_number(v, &path)
+        }),
+        _ => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -552,6 +584,47 @@ mod tests {
         std::fs::write(&bad, text.replace("cycle_s = 0.002", "cycle_s = -1.0")).unwrap();
         let err = CellConfig::load(&bad).unwrap_err().to_string();
         assert!(err.contains("fri.cycle_s"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn nan_and_infinity_are_refused_in_every_number() {
+        // Issue 21 item 4: TOML spells nan and inf; none may reach the cell.
+        let text = std::fs::read_to_string(shipped()).unwrap();
+        let dir = std::env::temp_dir().join(format!("graspcell-nan-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cases = [
+            ("height_m = 0.0", "height_m = nan", "table.height_m", "NaN"),
+            (
+                "center_xy_m = [0.65, 0.0]",
+                "center_xy_m = [0.65, -inf]",
+                "table.center_xy_m[1]",
+                "-inf",
+            ),
+            (
+                "max_m = [1.10, 0.70, 1.00]",
+                "max_m = [1.10, 0.70, inf]",
+                "workspace.max_m[2]",
+                "inf",
+            ),
+            (
+                "pregrasp_offset_m = 0.10",
+                "pregrasp_offset_m = +inf",
+                "robot.pregrasp_offset_m",
+                "inf",
+            ),
+            ("fx_px = 525.0", "fx_px = nan", "camera.fx_px", "NaN"),
+        ];
+        for (line, bad, field, shown) in cases {
+            assert!(text.contains(line), "{line}");
+            let path = dir.join("nan.toml");
+            std::fs::write(&path, text.replace(line, bad)).unwrap();
+            let err = CellConfig::load(&path).unwrap_err().to_string();
+            assert!(
+                err.contains(&format!("{field} = {shown}")) && err.contains("finite"),
+                "{bad}: {err}"
+            );
+        }
         std::fs::remove_dir_all(&dir).ok();
     }
 
