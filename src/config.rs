@@ -251,6 +251,11 @@ pub struct FriConfig {
     pub backend: String,
     /// Local UDP address the driver binds (FRI default port 49938).
     pub bind_addr: String,
+    /// The robot controller (KRC): its IP address (any port) or address with port.
+    /// The driver answers nobody else: datagrams from other senders are dropped,
+    /// counted and never answered. Required; the shipped value is the simulator's
+    /// host (127.0.0.1).
+    pub robot_addr: String,
     /// Measurement period the KRL program requests (s).
     pub cycle_s: f64,
     /// A missing measurement for this long stops the executor (s).
@@ -367,6 +372,17 @@ impl CellConfig {
             value,
             problem: problem.to_string(),
         };
+        // TOML spells nan and inf: no number anywhere in the file may be either.
+        if let Some((field, value)) = toml::Value::try_from(self)
+            .ok()
+            .and_then(|v| non_finite_number(&v, ""))
+        {
+            return Err(invalid(
+                &field,
+                value.to_string(),
+                "must be a finite number",
+            ));
+        }
         let positive = [
             ("table.extent_xy_m[0]", self.table.extent_xy_m[0]),
             ("table.extent_xy_m[1]", self.table.extent_xy_m[1]),
@@ -469,11 +485,42 @@ impl CellConfig {
                 "use sim or hardware",
             ));
         }
+        let robot_addr = self.fri.robot_addr.trim();
+        if robot_addr.parse::<std::net::SocketAddr>().is_err()
+            && robot_addr.parse::<std::net::IpAddr>().is_err()
+        {
+            return Err(invalid(
+                "fri.robot_addr",
+                self.fri.robot_addr.clone(),
+                "must be the robot controller's IP address, or address:port (e.g. 192.168.0.10)",
+            ));
+        }
         self.camera
             .base_from_camera
             .to_pose("camera.base_from_camera")
             .map_err(|e| invalid("camera.base_from_camera", String::new(), &e.to_string()))?;
         Ok(())
+    }
+}
+
+/// The first NaN or infinite number in `value` and its path (`table.height_m`,
+/// `workspace.min_m[2]`).
+fn non_finite_number(value: &toml::Value, path: &str) -> Option<(String, f64)> {
+    match value {
+        toml::Value::Float(f) if !f.is_finite() => Some((path.to_string(), *f)),
+        toml::Value::Array(items) => items
+            .iter()
+            .enumerate()
+            .find_map(|(i, v)| non_finite_number(v, &format!("{path}[{i}]"))),
+        toml::Value::Table(table) => table.iter().find_map(|(key, v)| {
+            let path = if path.is_empty() {
+                key.clone()
+            } else {
+                format!("{path}.{key}")
+            };
+            non_finite_number(v, &path)
+        }),
+        _ => None,
     }
 }
 
@@ -544,6 +591,74 @@ mod tests {
         std::fs::write(&bad, text.replace("cycle_s = 0.002", "cycle_s = -1.0")).unwrap();
         let err = CellConfig::load(&bad).unwrap_err().to_string();
         assert!(err.contains("fri.cycle_s"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn nan_and_infinity_are_refused_in_every_number() {
+        // Issue 21 item 4: TOML spells nan and inf; none may reach the cell.
+        let text = std::fs::read_to_string(shipped()).unwrap();
+        let dir = std::env::temp_dir().join(format!("graspcell-nan-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cases = [
+            ("height_m = 0.0", "height_m = nan", "table.height_m", "NaN"),
+            (
+                "center_xy_m = [0.65, 0.0]",
+                "center_xy_m = [0.65, -inf]",
+                "table.center_xy_m[1]",
+                "-inf",
+            ),
+            (
+                "max_m = [1.10, 0.70, 1.00]",
+                "max_m = [1.10, 0.70, inf]",
+                "workspace.max_m[2]",
+                "inf",
+            ),
+            (
+                "pregrasp_offset_m = 0.10",
+                "pregrasp_offset_m = +inf",
+                "robot.pregrasp_offset_m",
+                "inf",
+            ),
+            ("fx_px = 525.0", "fx_px = nan", "camera.fx_px", "NaN"),
+        ];
+        for (line, bad, field, shown) in cases {
+            assert!(text.contains(line), "{line}");
+            let path = dir.join("nan.toml");
+            std::fs::write(&path, text.replace(line, bad)).unwrap();
+            let err = CellConfig::load(&path).unwrap_err().to_string();
+            assert!(
+                err.contains(&format!("{field} = {shown}")) && err.contains("finite"),
+                "{bad}: {err}"
+            );
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn the_robot_controller_address_is_required_and_checked() {
+        let text = std::fs::read_to_string(shipped()).unwrap();
+        assert!(CellConfig::load(&shipped()).unwrap().fri.robot_addr == "127.0.0.1");
+        let dir = std::env::temp_dir().join(format!("graspcell-robot-addr-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let load = |name: &str, text: String| {
+            let path = dir.join(name);
+            std::fs::write(&path, text).unwrap();
+            CellConfig::load(&path)
+        };
+        let line = "robot_addr = \"127.0.0.1\"";
+        assert!(text.contains(line));
+        let err = load("missing.toml", text.replace(line, "")).unwrap_err();
+        assert!(err.to_string().contains("robot_addr"), "{err}");
+        let err = load("bad.toml", text.replace(line, "robot_addr = \"krc\"")).unwrap_err();
+        assert!(err.to_string().contains("fri.robot_addr = krc"), "{err}");
+        for ok in ["192.168.0.10", "192.168.0.10:49938", "[::1]:49938"] {
+            let config = load(
+                "ok.toml",
+                text.replace(line, &format!("robot_addr = \"{ok}\"")),
+            );
+            assert_eq!(config.unwrap().fri.robot_addr, ok);
+        }
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -31,6 +31,7 @@ pub mod robot;
 pub mod serve;
 pub mod sim;
 pub mod stats;
+pub mod sys;
 pub mod trajectory;
 pub mod trial;
 pub mod untrusted;

@@ -551,6 +551,16 @@ mod tests {
                 ..
             })
         ));
+        // Issue 21 item 4: a joint target at infinity, or starting at one.
+        q[5] = f64::INFINITY;
+        assert!(matches!(
+            Trajectory::point_to_point([0.0; 7], q, &l),
+            Err(TrajectoryError::NonFiniteWaypoint { joint: 5, .. })
+        ));
+        assert!(matches!(
+            Trajectory::point_to_point(q, [0.0; 7], &l),
+            Err(TrajectoryError::NonFiniteWaypoint { waypoint: 0, .. })
+        ));
         assert_eq!(
             Trajectory::<7>::through(&[], &l),
             Err(TrajectoryError::NoWaypoints)

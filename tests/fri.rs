@@ -6,7 +6,11 @@
 //! every wait has a timeout and no test asserts how long anything took.
 
 use graspcell::clock::{Clock, SystemClock};
-use graspcell::hw::fri::{DriverConfig, FriDriver, FriError, FriEvent, FriState, Quality};
+use graspcell::hw::fri::datagram::{InterfaceState, RobotData, RobotState};
+use graspcell::hw::fri::{
+    ControlMode, DriverConfig, FriDriver, FriError, FriEvent, FriState, MeasurementDatagram,
+    Quality, RobotPeer,
+};
 use graspcell::sim::fri::{
     spawn_udp, DropReason, QualityThresholds, SimConfig, SimHandle, LBR4_VELOCITY_LIMIT_RAD_S,
 };
@@ -304,4 +308,154 @@ fn simulator_process_drives_the_driver_into_command_mode() {
         matches!(late, Some(Ok(Some(FriEvent::MeasurementLate { .. })))),
         "{late:?}"
     );
+}
+
+/// A loopback address with a port nobody uses now (bound, then released).
+fn free_loopback_addr() -> std::net::SocketAddr {
+    let socket = std::net::UdpSocket::bind(LOCALHOST_ANY_PORT).unwrap();
+    socket.local_addr().unwrap()
+}
+
+/// A well-formed measurement of a robot in command mode at PERFECT quality whose
+/// joints are at `q`: what a spoofer on the KRC network would send.
+fn forged_measurement(seq: u16, q: [f32; 7]) -> MeasurementDatagram {
+    MeasurementDatagram {
+        send_seq_count: seq,
+        interface: InterfaceState {
+            state: FriState::Command,
+            quality: Quality::Perfect,
+            desired_msr_sample_time_s: 0.002,
+            desired_cmd_sample_time_s: 0.002,
+            ..Default::default()
+        },
+        robot: RobotState {
+            power: 0x7f,
+            control: ControlMode::Position,
+            ..Default::default()
+        },
+        data: RobotData {
+            msr_jnt_pos: q,
+            cmd_jnt_pos: q,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+}
+
+/// Issue 21 item 3: while the arm moves, a second socket on the same host sends
+/// valid command-mode measurements to the driver, numbered ahead of the robot's
+/// (accepted, they would jump the trajectory's time, make the robot's own
+/// measurements stale, and mirror the forged joints). The driver is pinned to the
+/// simulator's address: the spoofer gets no answer, the drop counter rises, and the
+/// commands the simulated robot received (its datagram-level record) are exactly
+/// the planned trajectory on the robot's own sequence clock, as without a spoofer.
+#[test]
+fn a_second_sender_cannot_steer_the_commanded_stream() {
+    let robot_addr = free_loopback_addr();
+    let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
+    let driver = FriDriver::start(
+        DriverConfig {
+            bind_addr: LOCALHOST_ANY_PORT.parse().unwrap(),
+            robot: RobotPeer::Exact(robot_addr),
+            timeout_s: 0.5,
+            ..DriverConfig::default()
+        },
+        Arc::clone(&clock),
+    )
+    .unwrap();
+    let q0 = [0.1, -0.3, 0.2, 0.5, -0.4, 0.3, 0.0];
+    let sim = spawn_udp(lenient_sim(q0), robot_addr, driver.local_addr(), clock).unwrap();
+    sim.with(|s| s.record_commands(true));
+    let start = driver.wait_until_commanding(20.0).unwrap().commanded_rad;
+    let goal = [0.4, 0.1, -0.2, 0.8, 0.1, -0.2, 0.6];
+    let traj = Trajectory::through(&[start, goal], &limits()).unwrap();
+
+    let spoofer = std::net::UdpSocket::bind(LOCALHOST_ANY_PORT).unwrap();
+    spoofer
+        .set_read_timeout(Some(Duration::from_millis(1)))
+        .unwrap();
+    let done = std::sync::atomic::AtomicBool::new(false);
+    let (outcome, (sent, replies)) = std::thread::scope(|scope| {
+        let spoofing = scope.spawn(|| {
+            let (mut sent, mut replies) = (0u32, 0u32);
+            let mut buf = [0u8; 2048];
+            while !done.load(std::sync::atomic::Ordering::Relaxed) {
+                let seq = driver.status().last_seq.unwrap_or(0);
+                let forged = forged_measurement(seq.wrapping_add(100 + sent as u16 % 50), [1.0; 7]);
+                spoofer
+                    .send_to(&forged.encode(), driver.local_addr())
+                    .unwrap();
+                sent += 1;
+                if spoofer.recv_from(&mut buf).is_ok() {
+                    replies += 1;
+                }
+            }
+            (sent, replies)
+        });
+        let id = driver.start_trajectory(traj.clone()).unwrap();
+        let outcome = eventually(traj.duration_s() + 20.0, || driver.motion_outcome(id));
+        done.store(true, std::sync::atomic::Ordering::Relaxed);
+        (outcome, spoofing.join().unwrap())
+    });
+    assert_eq!(outcome, Some(Ok(())));
+    let status = driver.status();
+    let summary_commands = sim.with(|s| s.take_commands());
+    let summary = sim.stop().unwrap();
+    assert!(sent > 10, "the spoofer sent only {sent} datagrams");
+    assert_eq!(replies, 0, "the driver answered the spoofer");
+    assert!(
+        status.counters.foreign_datagrams >= u64::from(sent) / 2
+            && status.counters.foreign_datagrams > 0,
+        "{sent} sent, {:?}",
+        status.counters
+    );
+    assert_eq!(
+        status.counters.stale_measurements, 0,
+        "{:?}",
+        status.counters
+    );
+    assert_eq!(summary.drop_reason, None);
+    assert_eq!(summary.state, FriState::Command);
+
+    // The robot's record: hold at the start, then the trajectory sample by sample.
+    let dt = 0.002;
+    let f32s = |q: [f64; 7]| q.map(|v| f64::from(v as f32));
+    let commands: Vec<_> = summary_commands
+        .iter()
+        .filter(|c| c.state == FriState::Command)
+        .collect();
+    let first_move = commands
+        .iter()
+        .position(|c| c.jnt_pos_rad != f32s(start))
+        .expect("the arm was commanded to move");
+    assert!(first_move > 0);
+    let close = |a: [f64; 7], b: [f64; 7]| (0..7).all(|j| (a[j] - b[j]).abs() < 1e-6);
+    let s0 = commands[first_move].refl_seq_count;
+    // The first moving command is the sample one period (or a few, after a lost
+    // measurement) into the trajectory.
+    let k0 = (1..=10)
+        .find(|&k| {
+            close(
+                commands[first_move].jnt_pos_rad,
+                f32s(traj.sample(k as f64 * dt).position),
+            )
+        })
+        .expect("the first moving command is on the trajectory");
+    for c in &commands[first_move..] {
+        let k = k0 + usize::from(c.refl_seq_count.wrapping_sub(s0));
+        let t = k as f64 * dt;
+        let expected = if t >= traj.duration_s() {
+            traj.end()
+        } else {
+            traj.sample(t).position
+        };
+        assert!(
+            close(c.jnt_pos_rad, f32s(expected)),
+            "seq {}: commanded {:?}, planned {expected:?}",
+            c.refl_seq_count,
+            c.jnt_pos_rad
+        );
+    }
+    assert!(close(commands.last().unwrap().jnt_pos_rad, f32s(goal)));
+    driver.shutdown(1.0).unwrap();
 }

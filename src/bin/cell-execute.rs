@@ -15,6 +15,10 @@ struct Args {
     /// Local UDP address of the FRI driver (default: `fri.bind_addr`).
     #[arg(long, value_name = "ADDR")]
     fri_bind: Option<String>,
+    /// The robot controller the FRI driver answers, IP or IP:port (default:
+    /// `fri.robot_addr`).
+    #[arg(long, value_name = "ADDR")]
+    fri_robot: Option<String>,
     /// CAN interface of the hand (default: `can.interface`).
     #[arg(long, value_name = "INTERFACE")]
     can_interface: Option<String>,
@@ -35,6 +39,7 @@ fn main() -> std::process::ExitCode {
         let config = CellConfig::load(&args.stage.config)?;
         let options = execute::ExecuteOptions {
             fri_bind: args.fri_bind.clone(),
+            fri_robot: args.fri_robot.clone(),
             can_interface: args.can_interface.clone(),
             hold_s: args.hold_s,
         };

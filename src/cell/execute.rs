@@ -85,9 +85,11 @@ fn status_phase(phase: Phase) -> Option<IpcPhase> {
     }
 }
 
-/// The executor's request for a received plan.
+/// The executor's request for a received plan, checked at the boundary
+/// ([`ExecutionRequest::validate`]: finite numbers, rigid poses, the spread in
+/// range), so a NaN or infinity in any field is refused before anything moves.
 pub fn execution_request(plan: &GraspPlan) -> Result<ExecutionRequest, CellError> {
-    Ok(ExecutionRequest {
+    let request = ExecutionRequest {
         palm: PoseJson::from(&plan.base_from_palm.to_pose("grasp plan palm")?),
         pregrasp: PoseJson::from(
             &plan
@@ -99,7 +101,11 @@ pub fn execution_request(plan: &GraspPlan) -> Result<ExecutionRequest, CellError
         spread_rad: plan.spread_rad,
         task: None,
         method: Some(plan.method()?.to_string()),
-    })
+    };
+    request
+        .validate()
+        .map_err(|e| CellError::Invalid(format!("grasp plan of trial {}: {e}", plan.trial_id)))?;
+    Ok(request)
 }
 
 /// Options of the execute stage besides the configuration.
@@ -107,6 +113,8 @@ pub fn execution_request(plan: &GraspPlan) -> Result<ExecutionRequest, CellError
 pub struct ExecuteOptions {
     /// Local UDP address of the FRI driver (overrides `fri.bind_addr`).
     pub fri_bind: Option<String>,
+    /// The robot controller the FRI driver answers (overrides `fri.robot_addr`).
+    pub fri_robot: Option<String>,
     /// CAN interface (overrides `can.interface`).
     pub can_interface: Option<String>,
     /// How long the lifted object is held (s).
@@ -137,6 +145,9 @@ pub fn run(
     let mut fri = config.fri.clone();
     if let Some(bind) = &options.fri_bind {
         fri.bind_addr = bind.clone();
+    }
+    if let Some(robot) = &options.fri_robot {
+        fri.robot_addr = robot.clone();
     }
     let device = |device: &'static str| {
         move |e: &dyn std::fmt::Display| CellError::Device {
@@ -178,7 +189,7 @@ pub fn run(
     // Subscribed last: the harness counts request subscribers to know the cell is up.
     let requests = stage.subscriber::<TrialRequest>()?;
     notify::ready("execute waiting for grasp plans");
-    tracing::info!(fri = %fri.bind_addr, can = %interface, "executor ready");
+    tracing::info!(fri = %fri.bind_addr, robot = %driver_config.robot, can = %interface, "executor ready");
     let mut watchdog = Watchdog::from_env();
     let joints_now = |driver: &FriDriver| JointState {
         arm_rad: driver.status().measured_rad,
@@ -285,6 +296,38 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_plan_payload_with_nan_or_infinity_is_refused() {
+        // Issue 21 item 4: a payload field.
+        use std::f64::consts::PI;
+        let palm = crate::geometry::pose_from_params(&[0.6, 0.0, 0.2, PI, 0.0, PI]);
+        let pregrasp = crate::geometry::pose_from_params(&[0.6, 0.0, 0.3, PI, 0.0, PI]);
+        let plan = |joints: [f64; 7], spread_rad: f64| {
+            let mut p = GraspPlan::new(7, 0, &palm, &pregrasp, joints, [0.1; 7], 0.0, true, "ours")
+                .unwrap();
+            p.spread_rad = spread_rad;
+            p
+        };
+        assert!(execution_request(&plan([0.1; 7], 0.0)).is_ok());
+        let mut joints = [0.1; 7];
+        joints[3] = f64::NAN;
+        let err = execution_request(&plan(joints, 0.0))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("trial 7") && err.contains("joints_rad"),
+            "{err}"
+        );
+        let err = execution_request(&plan([0.1; 7], f64::INFINITY))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("spread_rad"), "{err}");
+        let mut bad_pose = plan([0.1; 7], 0.0);
+        bad_pose.base_from_palm.rows[0][3] = f64::NEG_INFINITY;
+        let err = execution_request(&bad_pose).unwrap_err().to_string();
+        assert!(err.contains("palm"), "{err}");
+    }
 
     #[test]
     fn error_codes_round_trip() {

@@ -96,6 +96,8 @@ pub struct Cell {
     stages: Vec<Process>,
     sims: Vec<Process>,
     fri_addr: String,
+    /// The simulated robot's own address (`None` on hardware: `fri.robot_addr`).
+    fri_robot_addr: Option<String>,
     fri_cycle_s: f64,
     can_interface: String,
     operator: Option<Operator>,
@@ -168,10 +170,11 @@ fn check_binaries(options: &HarnessOptions) -> Result<(), CellError> {
     })
 }
 
-fn signal(child: &Child, sig: libc::c_int) {
-    // SAFETY: kill(2) on the id of our own child; no memory is involved.
-    unsafe {
-        libc::kill(child.id() as libc::pid_t, sig);
+/// Asks `child` to stop (SIGTERM), unless it has already been reaped (its PID may
+/// then be another process's).
+fn terminate(process: &mut Process) {
+    if let Err(e) = crate::sys::terminate_child(&mut process.child) {
+        tracing::warn!(process = %process.name, "cannot send SIGTERM: {e}");
     }
 }
 
@@ -200,13 +203,25 @@ impl Cell {
             std::process::id(),
             domain.prefix().trim_end_matches('_')
         );
-        let (fri_addr, can_interface) = if options.simulated_devices {
+        // With simulated devices the executor's driver answers exactly the arm
+        // simulator's address and port (pinned, as `fri.robot_addr` pins the KRC).
+        let (fri_addr, fri_robot_addr, can_interface) = if options.simulated_devices {
+            let pc_port = free_udp_port()?;
+            let mut robot_port = free_udp_port()?;
+            while robot_port == pc_port {
+                robot_port = free_udp_port()?;
+            }
             (
-                format!("127.0.0.1:{}", free_udp_port()?),
+                format!("127.0.0.1:{pc_port}"),
+                Some(format!("127.0.0.1:{robot_port}")),
                 format!("virtual:cell-{tag}"),
             )
         } else {
-            (config.fri.bind_addr.clone(), config.can.interface.clone())
+            (
+                config.fri.bind_addr.clone(),
+                None,
+                config.can.interface.clone(),
+            )
         };
         let mut cell = Cell {
             options,
@@ -214,6 +229,7 @@ impl Cell {
             stages: Vec::new(),
             sims: Vec::new(),
             fri_addr,
+            fri_robot_addr,
             fri_cycle_s: config.fri.cycle_s,
             can_interface,
             operator: None,
@@ -295,6 +311,10 @@ impl Cell {
             let arm_args = vec![
                 "--pc-addr".to_string(),
                 self.fri_addr.clone(),
+                "--bind".into(),
+                self.fri_robot_addr
+                    .clone()
+                    .unwrap_or_else(|| "127.0.0.1:0".into()),
                 "--initial-joints".into(),
                 home.join(","),
                 "--cycle-ms".into(),
@@ -382,14 +402,19 @@ impl Cell {
             "perceive" | "plan" => {
                 args.extend(["--db-dir".into(), self.options.db_dir.display().to_string()])
             }
-            "execute" => args.extend([
-                "--fri-bind".into(),
-                self.fri_addr.clone(),
-                "--can-interface".into(),
-                self.can_interface.clone(),
-                "--hold-s".into(),
-                self.options.hold_s.to_string(),
-            ]),
+            "execute" => {
+                args.extend([
+                    "--fri-bind".into(),
+                    self.fri_addr.clone(),
+                    "--can-interface".into(),
+                    self.can_interface.clone(),
+                    "--hold-s".into(),
+                    self.options.hold_s.to_string(),
+                ]);
+                if let Some(robot) = &self.fri_robot_addr {
+                    args.extend(["--fri-robot".into(), robot.clone()]);
+                }
+            }
             "log" => args.extend([
                 "--log".into(),
                 self.options.log_path.display().to_string(),
@@ -576,16 +601,16 @@ impl Cell {
 
     fn shutdown(&mut self) {
         self.operator = None;
-        for p in &self.stages {
-            signal(&p.child, libc::SIGTERM);
+        for p in &mut self.stages {
+            terminate(p);
         }
         for p in &mut self.stages {
             if !reap(&mut p.child, Duration::from_secs(10)) {
                 tracing::warn!(stage = %p.name, "did not stop on SIGTERM: killed");
             }
         }
-        for p in &self.sims {
-            signal(&p.child, libc::SIGTERM);
+        for p in &mut self.sims {
+            terminate(p);
         }
         for p in &mut self.sims {
             reap(&mut p.child, Duration::from_secs(5));

@@ -37,7 +37,6 @@ pub mod setup;
 use crate::ipc::{Domain, IpcError};
 use clap::Args;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 /// The stages of the cell, in data-flow order (node names and binary suffixes).
@@ -202,8 +201,7 @@ pub fn system_ipc_root() -> Result<PathBuf, CellError> {
     if let Some(dir) = std::env::var_os("XDG_RUNTIME_DIR") {
         candidates.push(PathBuf::from(dir).join("graspcell"));
     }
-    // SAFETY: getuid has no preconditions and cannot fail.
-    let uid = unsafe { libc::getuid() };
+    let uid = crate::sys::user_id();
     candidates.push(std::env::temp_dir().join(format!("graspcell-{uid}")));
     for dir in &candidates {
         if writable_dir(dir) {
@@ -229,31 +227,18 @@ fn writable_dir(dir: &Path) -> bool {
     ok
 }
 
-static STOP: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn on_stop_signal(_: libc::c_int) {
-    STOP.store(true, Ordering::SeqCst);
-}
-
 /// Makes SIGTERM and SIGINT request a clean stop ([`stop_requested`]) instead of
-/// killing the process, so a stage drops its ports and leaves no shared memory.
+/// killing the process, so a stage drops its ports and leaves no shared memory
+/// (`sigaction`, [`crate::sys::install_stop_signal_handler`]).
 pub fn install_stop_handler() {
-    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
-    unsafe {
-        libc::signal(
-            libc::SIGTERM,
-            on_stop_signal as *const () as libc::sighandler_t,
-        );
-        libc::signal(
-            libc::SIGINT,
-            on_stop_signal as *const () as libc::sighandler_t,
-        );
+    if let Err(e) = crate::sys::install_stop_signal_handler() {
+        tracing::warn!("cannot handle SIGTERM/SIGINT ({e}): a signal ends the process at once");
     }
 }
 
 /// True once SIGTERM or SIGINT arrived (after [`install_stop_handler`]).
 pub fn stop_requested() -> bool {
-    STOP.load(Ordering::SeqCst)
+    crate::sys::stop_signal_received()
 }
 
 /// Entry point of a stage binary: logging, the stop handler, `run`, the error chain

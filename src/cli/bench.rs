@@ -120,22 +120,7 @@ fn parse_load_average(text: &str) -> Option<[f64; 3]> {
 
 /// CPU time (ms) of the calling thread (`per_thread`) or of the whole process.
 pub fn cpu_ms(per_thread: bool) -> f64 {
-    let clock = if per_thread {
-        libc::CLOCK_THREAD_CPUTIME_ID
-    } else {
-        libc::CLOCK_PROCESS_CPUTIME_ID
-    };
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; the clock ids are Linux constants.
-    let rc = unsafe { libc::clock_gettime(clock, &mut ts) };
-    assert_eq!(
-        rc, 0,
-        "clock_gettime of a CPU-time clock cannot fail on Linux"
-    );
-    ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6
+    crate::sys::cpu_time_ms(per_thread)
 }
 
 /// Runs one benchmark.

@@ -331,15 +331,7 @@ struct RenderBench {
 
 /// Minor page faults of the process so far (0 if getrusage fails).
 fn minor_page_faults() -> u64 {
-    // SAFETY: an all-zero rusage is a valid value of the plain C struct.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: `usage` is a valid, writable rusage.
-    let rc = unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) };
-    if rc == 0 {
-        usage.ru_minflt as u64
-    } else {
-        0
-    }
+    crate::sys::resource_usage().map_or(0, |u| u.minor_page_faults)
 }
 
 /// Whether two frames agree bit for bit (NaN depths compare by their bits).

@@ -351,13 +351,7 @@ struct RegisterBench {
 
 /// CPU time (user and system) of this process so far (ms).
 fn process_cpu_ms() -> f64 {
-    // SAFETY: getrusage only writes the struct it is given.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
-        return f64::NAN;
-    }
-    let ms = |t: libc::timeval| t.tv_sec as f64 * 1e3 + t.tv_usec as f64 * 1e-3;
-    ms(usage.ru_utime) + ms(usage.ru_stime)
+    crate::sys::resource_usage().map_or(f64::NAN, |u| u.cpu_ms)
 }
 
 /// The mug `index` of the bench's set.

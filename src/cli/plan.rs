@@ -760,17 +760,7 @@ fn sim_bench(
 /// CPU time of the calling thread (ms): a serial run's cost whatever else the machine
 /// is doing.
 fn thread_cpu_ms() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; the clock id is a Linux constant.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    assert_eq!(
-        rc, 0,
-        "clock_gettime(CLOCK_THREAD_CPUTIME_ID) cannot fail on Linux"
-    );
-    ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6
+    crate::sys::cpu_time_ms(true)
 }
 
 fn time_ms(f: impl FnOnce() -> PlanOutcome) -> (f64, PlanOutcome) {

@@ -1037,6 +1037,37 @@ mod tests {
     }
 
     #[test]
+    fn a_plan_with_nan_or_infinity_is_refused_before_anything_moves() {
+        // Issue 21 item 4: a plan (the executor's request, also the plan file).
+        let good = request(&Rig::grasping().robot);
+        let mut cases = Vec::new();
+        let mut r = good.clone();
+        r.joints_rad[1] = f64::NAN;
+        cases.push((r, "joints_rad"));
+        let mut r = good.clone();
+        r.pregrasp_joints_rad[6] = f64::INFINITY;
+        cases.push((r, "pregrasp_joints_rad"));
+        let mut r = good.clone();
+        r.palm.xyz[2] = f64::NAN;
+        cases.push((r, "palm"));
+        let mut r = good.clone();
+        r.spread_rad = f64::NEG_INFINITY;
+        cases.push((r, "spread_rad"));
+        for (req, field) in cases {
+            let rig = Rig::grasping();
+            let report = rig.executor(&rig.arm).execute(&req);
+            let err = report.error.as_ref().expect("refused");
+            assert_eq!(err.kind(), "bad_request", "{field}: {err}");
+            assert!(err.to_string().contains(field), "{field}: {err}");
+            assert_ne!(report.outcome, Outcome::Success);
+            let q = rig.sim_joints();
+            assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-6), "{q:?}");
+            let emulator = rig._emulator.stop().unwrap().0;
+            assert_eq!(emulator.stats().received, 0, "the hand was never addressed");
+        }
+    }
+
+    #[test]
     fn joints_that_miss_the_pose_are_a_plan_mismatch() {
         let rig = Rig::grasping();
         let mut req = request(&rig.robot);

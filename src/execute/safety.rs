@@ -254,6 +254,12 @@ impl SafetyCheck {
         let mut acceleration: Option<(f64, SafetyError)> = None;
         let worse =
             |slot: &mut Option<(f64, SafetyError)>, excess: f64, make: &dyn Fn() -> SafetyError| {
+                // NaN (a NaN position, velocity or acceleration) is the worst excess.
+                let excess = if excess.is_nan() {
+                    f64::INFINITY
+                } else {
+                    excess
+                };
                 if excess > 0.0 && slot.as_ref().is_none_or(|(e, _)| excess > *e) {
                     *slot = Some((excess, make()));
                 }
@@ -262,13 +268,7 @@ impl SafetyCheck {
             for j in 0..JOINTS {
                 let q = s.position[j];
                 let (lo, hi) = (l.lower_rad[j] + l.margin_rad, l.upper_rad[j] - l.margin_rad);
-                let (excess, limit_rad) = if q.is_nan() {
-                    (f64::INFINITY, hi)
-                } else if q < lo {
-                    (lo - q, lo)
-                } else {
-                    (q - hi, hi)
-                };
+                let (excess, limit_rad) = if q < lo { (lo - q, lo) } else { (q - hi, hi) };
                 worse(&mut position, excess, &|| SafetyError::OutOfLimit {
                     joint: name(j),
                     position_rad: q,

@@ -18,28 +18,13 @@ pub const CONTROL_PRIORITY: i32 = 40;
 /// Puts the calling thread under `SCHED_FIFO` at `priority`; the OS error when it
 /// is not permitted or the priority is out of range.
 pub fn set_fifo_priority(priority: i32) -> std::io::Result<()> {
-    let param = libc::sched_param {
-        sched_priority: priority,
-    };
-    // SAFETY: pthread_self() is always a valid handle of the calling thread and
-    // `param` outlives the call.
-    let rc = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) };
-    if rc == 0 {
-        Ok(())
-    } else {
-        Err(std::io::Error::from_raw_os_error(rc))
-    }
+    crate::sys::set_thread_fifo_priority(priority)
 }
 
 /// The calling thread's real-time priority: `Some(priority)` under `SCHED_FIFO` or
 /// `SCHED_RR`, `None` under a normal policy.
 pub fn current_realtime_priority() -> Option<i32> {
-    let mut policy = 0;
-    let mut param = libc::sched_param { sched_priority: 0 };
-    // SAFETY: valid handle of the calling thread; both out-pointers are live locals.
-    let rc = unsafe { libc::pthread_getschedparam(libc::pthread_self(), &mut policy, &mut param) };
-    (rc == 0 && (policy == libc::SCHED_FIFO || policy == libc::SCHED_RR))
-        .then_some(param.sched_priority)
+    crate::sys::thread_realtime_priority()
 }
 
 /// Lowers the calling thread to the lowest ordinary priority (`SCHED_OTHER`, nice
@@ -47,20 +32,8 @@ pub fn current_realtime_priority() -> Option<i32> {
 /// work beside a device's cycle (a simulator's physics); a failure only leaves it
 /// where it was.
 pub fn lower_thread_priority() {
-    let param = libc::sched_param { sched_priority: 0 };
-    // SAFETY: pthread_self() is the calling thread's valid handle and `param`
-    // outlives the call; gettid has no preconditions, and setpriority on the
-    // calling thread's own id only changes its nice value.
-    let rc = unsafe {
-        libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_OTHER, &param);
-        let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
-        libc::setpriority(libc::PRIO_PROCESS, tid, 19)
-    };
-    if rc != 0 {
-        tracing::debug!(
-            "cannot lower a background thread's priority: {}",
-            std::io::Error::last_os_error()
-        );
+    if let Err(e) = crate::sys::set_thread_background_priority() {
+        tracing::debug!("cannot lower a background thread's priority: {e}");
     }
 }
 

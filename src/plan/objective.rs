@@ -603,6 +603,12 @@ mod tests {
             "{err}"
         );
         fits[1].eps_m2 = 1e-5;
+        fits[0].sigma_m2 = f64::INFINITY;
+        let err = Objective::new(&fits, &grasps, "side", &k, &w)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("fit 0") && err.contains("sigma_m2"), "{err}");
+        fits[0].sigma_m2 = 1e-6;
         grasps.push(grasp(7, "side", [0.0; 6], 0.1));
         let err = Objective::new(&fits, &grasps, "side", &k, &w)
             .unwrap_err()

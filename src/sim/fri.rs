@@ -437,6 +437,20 @@ pub enum Answer {
     Garbled,
 }
 
+/// A command as the robot received it ([`FriSimulator::record_commands`]): the
+/// record of what left the PC, at the datagram level.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ReceivedCommand {
+    /// The measurement it answers (`reflSeqCount`).
+    pub refl_seq_count: u16,
+    /// The robot's state when it arrived (only in CMD does the arm follow it).
+    pub state: FriState,
+    /// Its `cmdFlags`.
+    pub cmd_flags: u32,
+    /// Its joint positions (rad), as the f32 on the wire.
+    pub jnt_pos_rad: [f64; JOINTS],
+}
+
 /// Cumulative counters since `friOpen`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct SimCounters {
@@ -593,6 +607,8 @@ pub struct FriSimulator {
     events: VecDeque<SimEvent>,
     counters: SimCounters,
     latencies_s: Vec<f64>,
+    /// Every answer received, when recording ([`FriSimulator::record_commands`]).
+    commands: Option<Vec<ReceivedCommand>>,
 }
 
 impl FriSimulator {
@@ -631,6 +647,7 @@ impl FriSimulator {
             events: VecDeque::new(),
             counters: SimCounters::default(),
             latencies_s: Vec::new(),
+            commands: None,
             config,
         })
     }
@@ -683,6 +700,20 @@ impl FriSimulator {
     /// Removes and returns the answer latencies recorded so far (s).
     pub fn take_latencies_s(&mut self) -> Vec<f64> {
         std::mem::take(&mut self.latencies_s)
+    }
+
+    /// Starts (or stops, `false`) keeping every command that answers a measurement
+    /// ([`ReceivedCommand`]; grows without bound while on).
+    pub fn record_commands(&mut self, on: bool) {
+        self.commands = on.then(|| self.commands.take().unwrap_or_default());
+    }
+
+    /// Removes and returns the commands recorded so far (oldest first).
+    pub fn take_commands(&mut self) -> Vec<ReceivedCommand> {
+        self.commands
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
     }
 
     /// When the next measurement is due (clock time).
@@ -992,6 +1023,14 @@ impl FriSimulator {
             }
         }
         self.last_answered = Some(refl);
+        if let Some(commands) = &mut self.commands {
+            commands.push(ReceivedCommand {
+                refl_seq_count: refl,
+                state: self.state,
+                cmd_flags: command.cmd_flags.raw(),
+                jnt_pos_rad: command.jnt_pos.map(f64::from),
+            });
+        }
         let latency_s = now.saturating_sub(sent_at).as_secs_f64();
         if self.config.record_latencies {
             self.latencies_s.push(latency_s);

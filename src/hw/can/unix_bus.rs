@@ -25,7 +25,6 @@ use super::{
 };
 use socket2::{Domain, SockAddr, Socket, Type};
 use std::io::ErrorKind;
-use std::mem::MaybeUninit;
 use std::os::unix::fs::{DirBuilderExt, MetadataExt};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -46,8 +45,7 @@ const MAX_SOCKET_PATH: usize = 107;
 pub fn hub_socket_path(name: &str) -> PathBuf {
     let dir = match std::env::var_os("XDG_RUNTIME_DIR") {
         Some(dir) if !dir.is_empty() => PathBuf::from(dir).join("graspcell-can"),
-        // SAFETY: getuid has no preconditions and cannot fail.
-        _ => std::env::temp_dir().join(format!("graspcell-can-{}", unsafe { libc::getuid() })),
+        _ => std::env::temp_dir().join(format!("graspcell-can-{}", crate::sys::user_id())),
     };
     dir.join(format!("{name}.sock"))
 }
@@ -114,46 +112,26 @@ fn new_seqpacket_socket() -> std::io::Result<Socket> {
     Socket::new(Domain::UNIX, Type::SEQPACKET, None)
 }
 
-/// Receives one packet into `buf`; returns its length (0 at end of stream).
-fn recv_packet(socket: &Socket, buf: &mut [u8; 64], flags: libc::c_int) -> std::io::Result<usize> {
-    let mut raw = [MaybeUninit::<u8>::uninit(); 64];
-    let n = socket.recv_with_flags(&mut raw, flags)?;
-    for (dst, src) in buf.iter_mut().zip(&raw[..n]) {
-        // SAFETY: recv initialised the first n bytes.
-        *dst = unsafe { src.assume_init() };
-    }
-    Ok(n)
-}
+use crate::sys::recv_packet;
 
 /// An exclusive `flock` on a lock file beside the socket, held while binding.
 struct BindLock(std::fs::File);
 
 impl BindLock {
     fn acquire(path: &Path) -> std::io::Result<BindLock> {
-        use std::os::fd::AsRawFd;
         let file = std::fs::OpenOptions::new()
             .create(true)
             .truncate(false)
             .write(true)
             .open(path)?;
-        loop {
-            // SAFETY: flock on a valid open descriptor has no other preconditions.
-            if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX) } == 0 {
-                return Ok(BindLock(file));
-            }
-            let err = std::io::Error::last_os_error();
-            if err.kind() != ErrorKind::Interrupted {
-                return Err(err);
-            }
-        }
+        crate::sys::lock_file_exclusive(&file)?;
+        Ok(BindLock(file))
     }
 }
 
 impl Drop for BindLock {
     fn drop(&mut self) {
-        use std::os::fd::AsRawFd;
-        // SAFETY: as above; closing the file would release the lock anyway.
-        unsafe { libc::flock(self.0.as_raw_fd(), libc::LOCK_UN) };
+        crate::sys::unlock_file(&self.0);
     }
 }
 

@@ -19,6 +19,19 @@
 //! one measurement period per measurement (by the sequence-number gap when some were
 //! lost), i.e. on the robot's clock.
 //!
+//! # Whom the driver answers
+//! Only the robot controller: [`DriverConfig::robot`] (`fri.robot_addr` in
+//! `robot/cell.toml`) names its IP address, or its address and port. A datagram
+//! from any other sender is dropped before it is decoded, counted
+//! ([`DriverCounters::foreign_datagrams`], reported as [`FriEvent::ForeignDatagram`]
+//! at the 1st, 2nd, 4th, 8th, ... drop) and never answered, so no other process on
+//! the KRC network can steer the commanded joint stream. A measurement whose
+//! `sendSeqCount` is not newer than the last accepted one (equal, or up to half the
+//! 16-bit range behind it, counting across the 65535 -> 0 wrap) is a replay or out of
+//! order: it is dropped, counted ([`DriverCounters::stale_measurements`]) and not
+//! answered, and it neither advances the trajectory nor changes the driver's view of
+//! the robot.
+//!
 //! # What "stop" does to the hardware
 //! - [`FriDriver::stop`] ends a motion with a synchronised deceleration within the
 //!   trajectory's acceleration limits, then holds the rest position. The driver keeps
@@ -239,6 +252,16 @@ pub enum FriEvent {
         /// How many are missing.
         missed: u16,
     },
+    /// A datagram from a sender other than the robot was dropped unanswered
+    /// (reported at the 1st, 2nd, 4th, ... drop so a flood cannot flood the log).
+    ForeignDatagram {
+        /// Its sender.
+        from: SocketAddr,
+        /// The robot the driver is pinned to.
+        robot: RobotPeer,
+        /// Foreign datagrams dropped so far.
+        dropped: u64,
+    },
     /// A measurement older than or equal to the latest arrived and was ignored.
     StaleMeasurement {
         /// Its `sendSeqCount`.
@@ -287,11 +310,63 @@ pub enum FriEvent {
     },
 }
 
+/// The robot controller the driver answers: every datagram from anyone else is
+/// dropped unanswered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum RobotPeer {
+    /// Any port of this IP address (`fri.robot_addr = "192.168.0.10"`).
+    Host(IpAddr),
+    /// Exactly this address and port (`fri.robot_addr = "192.168.0.10:49938"`).
+    Exact(SocketAddr),
+}
+
+impl RobotPeer {
+    /// Whether a datagram from `from` comes from the robot. IPv4 senders seen on a
+    /// dual-stack IPv6 socket (`::ffff:a.b.c.d`) compare as IPv4.
+    pub fn admits(&self, from: SocketAddr) -> bool {
+        let ip = from.ip().to_canonical();
+        match *self {
+            RobotPeer::Host(host) => ip == host.to_canonical(),
+            RobotPeer::Exact(addr) => ip == addr.ip().to_canonical() && from.port() == addr.port(),
+        }
+    }
+}
+
+impl std::str::FromStr for RobotPeer {
+    type Err = FriError;
+
+    fn from_str(text: &str) -> Result<RobotPeer, FriError> {
+        let text = text.trim();
+        if let Ok(addr) = text.parse::<SocketAddr>() {
+            Ok(RobotPeer::Exact(addr))
+        } else if let Ok(ip) = text.parse::<IpAddr>() {
+            Ok(RobotPeer::Host(ip))
+        } else {
+            Err(FriError::BadConfig {
+                field: "fri.robot_addr",
+                value: text.to_string(),
+                problem: "not an IP address (the robot controller's, e.g. 192.168.0.10) or an IP address with port (192.168.0.10:49938)",
+            })
+        }
+    }
+}
+
+impl std::fmt::Display for RobotPeer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RobotPeer::Host(ip) => write!(f, "{ip} (any port)"),
+            RobotPeer::Exact(addr) => write!(f, "{addr}"),
+        }
+    }
+}
+
 /// Settings of the driver.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DriverConfig {
     /// Local UDP address to bind (FRI default port 49938; port 0 picks a free one).
     pub bind_addr: SocketAddr,
+    /// The robot controller; datagrams from anyone else are dropped unanswered.
+    pub robot: RobotPeer,
     /// A measurement missing for this long is a safe stop (s).
     pub timeout_s: f64,
     /// Lowest link quality at which the driver commands (BAD, OK or PERFECT).
@@ -304,6 +379,8 @@ impl Default for DriverConfig {
     fn default() -> DriverConfig {
         DriverConfig {
             bind_addr: SocketAddr::new(IpAddr::V4(Ipv4Addr::UNSPECIFIED), DEFAULT_PORT),
+            // The simulator's host; a cell's configuration always names its robot.
+            robot: RobotPeer::Host(IpAddr::V4(Ipv4Addr::LOCALHOST)),
             timeout_s: 0.1,
             min_command_quality: Quality::Bad,
             start_tolerance_rad: 1e-4,
@@ -321,6 +398,7 @@ impl DriverConfig {
         })?;
         let config = DriverConfig {
             bind_addr,
+            robot: fri.robot_addr.parse()?,
             timeout_s: fri.timeout_s,
             ..DriverConfig::default()
         };
@@ -368,8 +446,13 @@ pub struct DriverCounters {
     pub missed_measurements: u64,
     /// Times no measurement came for `timeout_s`.
     pub late: u64,
-    /// Datagrams that were not valid measurements.
+    /// Datagrams from the robot that were not valid measurements.
     pub bad_datagrams: u64,
+    /// Datagrams from senders other than the robot (dropped unanswered).
+    pub foreign_datagrams: u64,
+    /// Measurements whose sequence number was not newer than the last accepted
+    /// (replayed or out of order; dropped unanswered).
+    pub stale_measurements: u64,
     /// Events discarded because nobody collected them.
     pub events_discarded: u64,
 }
@@ -484,6 +567,7 @@ impl DriverCore {
             | FriEvent::MeasurementLate { .. }
             | FriEvent::MotionAborted { .. }
             | FriEvent::SocketError { .. }
+            | FriEvent::ForeignDatagram { .. }
             | FriEvent::BadDatagram { .. } => tracing::warn!("FRI: {event:?}"),
             _ => tracing::info!("FRI: {event:?}"),
         }
@@ -556,6 +640,7 @@ impl DriverCore {
             Some(prev) => {
                 let gap = seq_ahead(seq, prev.send_seq_count);
                 if gap == 0 || gap > u16::MAX / 2 {
+                    self.counters.stale_measurements += 1;
                     self.push(FriEvent::StaleMeasurement {
                         seq,
                         latest_seq: prev.send_seq_count,
@@ -727,6 +812,37 @@ impl DriverCore {
                     self.motion = Motion::Hold(q);
                 }
                 q
+            }
+        }
+    }
+
+    /// Takes in one datagram from `from` received at `now`: dropped (counted, never
+    /// answered) unless it comes from the robot ([`DriverConfig::robot`]), then
+    /// decoded and handled as [`DriverCore::on_measurement`]. Returns the command
+    /// to send back to `from`, if any.
+    pub fn on_datagram(
+        &mut self,
+        bytes: &[u8],
+        from: SocketAddr,
+        now: Duration,
+    ) -> Option<CommandDatagram> {
+        if !self.config.robot.admits(from) {
+            self.counters.foreign_datagrams += 1;
+            let dropped = self.counters.foreign_datagrams;
+            if dropped.is_power_of_two() {
+                self.push(FriEvent::ForeignDatagram {
+                    from,
+                    robot: self.config.robot,
+                    dropped,
+                });
+            }
+            return None;
+        }
+        match MeasurementDatagram::decode(bytes) {
+            Ok(m) => self.on_measurement(&m, now),
+            Err(error) => {
+                self.on_bad_datagram(error);
+                None
             }
         }
     }
@@ -1195,17 +1311,14 @@ fn serve(shared: &Shared, socket: &UdpSocket, clock: &dyn Clock) {
         let now = clock.now();
         let mut core = shared.lock();
         match received {
-            Ok((n, from)) => match MeasurementDatagram::decode(&buf[..n]) {
-                Ok(m) => {
-                    if let Some(command) = core.on_measurement(&m, now) {
-                        if let Err(e) = socket.send_to(&command.encode(), from) {
-                            let error = io_error("send command to", from, &e);
-                            core.push(FriEvent::SocketError { error });
-                        }
+            Ok((n, from)) => {
+                if let Some(command) = core.on_datagram(&buf[..n], from, now) {
+                    if let Err(e) = socket.send_to(&command.encode(), from) {
+                        let error = io_error("send command to", from, &e);
+                        core.push(FriEvent::SocketError { error });
                     }
                 }
-                Err(error) => core.on_bad_datagram(error),
-            },
+            }
             Err(e)
                 if matches!(
                     e.kind(),
@@ -1292,6 +1405,101 @@ mod tests {
             err.to_string().contains("fri.bind_addr = localhost"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn only_the_robot_is_answered() {
+        let robot: SocketAddr = "192.168.0.10:49938".parse().unwrap();
+        let stranger: SocketAddr = "192.168.0.11:49938".parse().unwrap();
+        let other_port: SocketAddr = "192.168.0.10:50000".parse().unwrap();
+        let mapped: SocketAddr = "[::ffff:192.168.0.10]:49938".parse().unwrap();
+        let host: RobotPeer = "192.168.0.10".parse().unwrap();
+        let exact: RobotPeer = "192.168.0.10:49938".parse().unwrap();
+        assert_eq!(host, RobotPeer::Host(robot.ip()));
+        assert_eq!(exact, RobotPeer::Exact(robot));
+        assert!(host.admits(robot) && host.admits(other_port) && host.admits(mapped));
+        assert!(!host.admits(stranger));
+        assert!(exact.admits(robot) && exact.admits(mapped));
+        assert!(!exact.admits(other_port) && !exact.admits(stranger));
+        let err = "krc.local".parse::<RobotPeer>().unwrap_err();
+        assert!(
+            err.to_string().contains("fri.robot_addr = krc.local"),
+            "{err}"
+        );
+
+        let mut d = DriverCore::new(DriverConfig {
+            robot: exact,
+            ..DriverConfig::default()
+        })
+        .unwrap();
+        let q = [0.1; JOINTS];
+        let bytes = |seq| measurement(seq, FriState::Monitor, Quality::Ok, q).encode();
+        // A well-formed, newer measurement from anyone else: dropped, unanswered,
+        // and not taken as the robot's (its sequence number does not count either).
+        for (k, from) in [stranger, other_port, stranger].into_iter().enumerate() {
+            assert!(d.on_datagram(&bytes(10 + k as u16), from, MS).is_none());
+        }
+        // Garbage from a stranger is foreign, not a bad datagram of the robot.
+        assert!(d.on_datagram(&[0u8; 3], stranger, MS).is_none());
+        let status = d.status();
+        assert_eq!(status.last_seq, None);
+        assert_eq!(status.counters.foreign_datagrams, 4);
+        assert_eq!(status.counters.bad_datagrams, 0);
+        assert_eq!(status.counters.measurements, 0);
+        assert_eq!(status.counters.answers, 0);
+        // Reported at the 1st, 2nd and 4th drop.
+        let reported: Vec<u64> = d
+            .take_events()
+            .iter()
+            .filter_map(|e| match e {
+                FriEvent::ForeignDatagram { dropped, robot, .. } => {
+                    assert_eq!(*robot, exact);
+                    Some(*dropped)
+                }
+                _ => None,
+            })
+            .collect();
+        assert_eq!(reported, [1, 2, 4]);
+        // The robot is answered, and an older number from a stranger still is not.
+        let c = d.on_datagram(&bytes(5), robot, MS).unwrap();
+        assert_eq!(c.refl_seq_count, 5);
+        assert!(d.on_datagram(&bytes(6), stranger, 2 * MS).is_none());
+        assert!(d.on_datagram(&bytes(6), mapped, 2 * MS).is_some());
+        assert_eq!(d.status().last_seq, Some(6));
+    }
+
+    #[test]
+    fn replayed_and_out_of_order_measurements_are_dropped_across_the_wrap() {
+        let mut d = core();
+        let q = [0.0f32; JOINTS];
+        let m = |seq, q| measurement(seq, FriState::Command, Quality::Perfect, q);
+        assert!(d.on_measurement(&m(65534, q), MS).is_some());
+        assert!(d.on_measurement(&m(65535, q), 2 * MS).is_some());
+        assert!(
+            d.on_measurement(&m(0, q), 3 * MS).is_some(),
+            "65535 -> 0 is newer"
+        );
+        let answers = d.status().counters.answers;
+        // A replay of the last, of one before the wrap, and one far behind.
+        for stale in [0, 65535, 65534, 40000] {
+            assert!(d.on_measurement(&m(stale, [1.0; JOINTS]), 4 * MS).is_none());
+        }
+        let status = d.status();
+        assert_eq!(status.counters.stale_measurements, 4);
+        assert_eq!(status.counters.answers, answers);
+        assert_eq!(status.last_seq, Some(0));
+        assert_eq!(
+            status.measured_rad, [0.0; JOINTS],
+            "a stale measurement is not news"
+        );
+        assert!(d.take_events().contains(&FriEvent::StaleMeasurement {
+            seq: 40000,
+            latest_seq: 0
+        }));
+        // Up to half the range ahead is newer (the rest lost).
+        assert!(d.on_measurement(&m(1, q), 5 * MS).is_some());
+        assert!(d.on_measurement(&m(1 + 32767, q), 6 * MS).is_some());
+        assert_eq!(d.status().counters.missed_measurements, 32766);
     }
 
     #[test]

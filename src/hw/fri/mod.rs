@@ -13,7 +13,9 @@ pub mod driver;
 pub use datagram::{
     CmdFlags, CommandDatagram, ControlMode, DatagramError, FriState, MeasurementDatagram, Quality,
 };
-pub use driver::{DriverConfig, ForceGuard, FriDriver, FriError, FriEvent, FriStatus, RELEASE_BIT};
+pub use driver::{
+    DriverConfig, ForceGuard, FriDriver, FriError, FriEvent, FriStatus, RobotPeer, RELEASE_BIT,
+};
 
 /// Number of joints of the LBR4+ (`LBR_MNJ`).
 pub const JOINTS: usize = 7;
