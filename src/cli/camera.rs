@@ -1,25 +1,22 @@
-//! `cell camera render` and `cell bench render`: the simulated depth camera;
-//! `cell camera record` (any backend into a fakenect recording) and `cell bench
-//! camera` (the Kinect backend's conversion and fakenect frame rate).
+//! `cell camera render`: the simulated depth camera; `cell camera record` (any
+//! backend into a fakenect recording). Their benchmarks are `bench::render` and
+//! `bench::camera`.
 
-use super::bench::{cpu_ms, load_average, median, percentile, RenderBenchArgs};
 use super::objects::write_atomically;
 use crate::cell::camera::{CameraBackend, Snapshot};
 use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
-use crate::hw::kinect::convert::{cloud_to_raw, depth_to_cloud, DepthEncoding};
+use crate::hw::kinect::convert::cloud_to_raw;
 use crate::hw::kinect::fakenect::{FakenectWriter, RawFrame};
 use crate::hw::kinect::gravity::{expected_gravity_camera, AccelCounts};
 use crate::hw::kinect::registration::{Registration, FRAME_HEIGHT, FRAME_WIDTH};
-use crate::mesh::procedural::{generate, Category};
 use crate::sim::camera::{DepthCamera, DepthFrame, Return, Surface};
-use crate::sim::scene::{load_scene, Scene, TableBox};
+use crate::sim::scene::{load_scene, Scene};
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Instant;
 
 /// Simulated camera commands.
 #[derive(Debug, Subcommand)]
@@ -285,178 +282,6 @@ fn write_depth_png(path: &Path, frame: &DepthFrame) -> anyhow::Result<()> {
     write_atomically(path, &bytes)
 }
 
-/// What `cell bench render` reports.
-#[derive(Debug, Serialize)]
-struct RenderBench {
-    workload: String,
-    width_px: u32,
-    height_px: u32,
-    threads: usize,
-    repeats: usize,
-    seed: u64,
-    scene_build_ms: f64,
-    /// Median time of one frame of the table and the mug on all threads (ms): the
-    /// figure the goal is about.
-    render_ms_median: f64,
-    render_ms_p90: f64,
-    /// CPU time of the process (all threads) per frame on all threads (ms):
-    /// what a frame costs whatever else the machine is doing.
-    render_cpu_ms_median: f64,
-    /// The same frame on one thread (ms): the baseline of the parallel render.
-    render_ms_median_one_thread: f64,
-    /// CPU time of the one thread per frame (ms).
-    render_cpu_ms_median_one_thread: f64,
-    parallel_speedup: f64,
-    /// The same frame with the mug ray cast through its BVH pixel by pixel
-    /// instead of rasterised, on all threads (ms): the earlier method.
-    ray_cast_ms_median: f64,
-    ratio_to_ray_cast: f64,
-    /// Fraction of pixels whose surface and status agree between the
-    /// rasterised and the ray-cast frame.
-    ray_cast_agreement: f64,
-    table_only_ms_median: f64,
-    ratio_to_table_only: f64,
-    /// Minor page faults per frame on all threads (fresh output buffers).
-    page_faults_per_frame: f64,
-    valid_fraction: f64,
-    object_hit_fraction: f64,
-    object_valid_fraction: f64,
-    /// Whether the frames rendered on one thread equal those on all threads.
-    one_thread_frames_identical: bool,
-    goal_ms: f64,
-    meets_goal: bool,
-    /// 1, 5 and 15 minute load averages at the end of the run.
-    load_average: Option<[f64; 3]>,
-}
-
-/// Minor page faults of the process so far (0 if getrusage fails).
-fn minor_page_faults() -> u64 {
-    crate::sys::resource_usage().map_or(0, |u| u.minor_page_faults)
-}
-
-/// Whether two frames agree bit for bit (NaN depths compare by their bits).
-fn frames_identical(a: &DepthFrame, b: &DepthFrame) -> bool {
-    a.status == b.status
-        && a.surface == b.surface
-        && a.depth_m.len() == b.depth_m.len()
-        && a.depth_m
-            .iter()
-            .zip(&b.depth_m)
-            .all(|(x, y)| x.to_bits() == y.to_bits())
-}
-
-/// Frame time goal of `cell bench render` (ms): about the Kinect's frame period.
-const RENDER_GOAL_MS: f64 = 30.0;
-
-/// Runs `cell bench render`: the configured camera over a table and a mug.
-pub fn bench_render(config_path: &Path, args: RenderBenchArgs) -> anyhow::Result<ExitCode> {
-    anyhow::ensure!(args.repeats > 0, "--repeats must be at least 1");
-    let config = CellConfig::load(config_path)?;
-    let table = TableBox::from(&config.table);
-    let start = Instant::now();
-    let (mug, _) = generate(Category::Mug, args.seed);
-    let mut scene = Scene::new(Some(table));
-    // The mug at the table's centre, turned so its handle shows to the camera.
-    let base_from_mug = Pose::new(
-        nalgebra::Vector3::new(table.center_xy_m[0], table.center_xy_m[1], table.height_m),
-        nalgebra::Vector3::z() * 1.2,
-    );
-    scene
-        .add(&format!("mug seed {}", args.seed), mug, base_from_mug)
-        .context("bench scene")?;
-    let scene_build_ms = start.elapsed().as_secs_f64() * 1e3;
-    let table_only = Scene::new(Some(table));
-    let camera = DepthCamera::from_config(&config.camera, config.base_from_camera());
-
-    // Wall time, CPU time (of this thread or the process) and the frame.
-    let time = |scene: &Scene, seed: u64, per_thread: bool| {
-        let (start, cpu) = (Instant::now(), cpu_ms(per_thread));
-        let frame = camera.render(scene, seed);
-        let cpu = cpu_ms(per_thread) - cpu;
-        (start.elapsed().as_secs_f64() * 1e3, cpu, frame)
-    };
-    // Warm up the thread pool and caches.
-    let (_, _, frame) = time(&scene, args.seed, false);
-    let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
-    let mut with_mug = Vec::with_capacity(args.repeats);
-    let mut with_mug_cpu = Vec::with_capacity(args.repeats);
-    let mut baseline = Vec::with_capacity(args.repeats);
-    let mut single = Vec::with_capacity(args.repeats);
-    let mut single_cpu = Vec::with_capacity(args.repeats);
-    let mut ray_cast = Vec::with_capacity(args.repeats);
-    let mut faults = 0;
-    let mut identical = true;
-    let mut agreement = 1f64;
-    let progress = indicatif::ProgressBar::new(args.repeats as u64);
-    for k in 0..args.repeats as u64 {
-        let seed = args.seed + k;
-        let faults_before = minor_page_faults();
-        let (ms, cpu, parallel_frame) = time(&scene, seed, false);
-        faults += minor_page_faults() - faults_before;
-        with_mug.push(ms);
-        with_mug_cpu.push(cpu);
-        baseline.push(time(&table_only, seed, false).0);
-        // Timed on the pool's own thread, so its CPU clock is the render's.
-        let (ms, cpu, single_frame) = one_thread.install(|| time(&scene, seed, true));
-        single.push(ms);
-        single_cpu.push(cpu);
-        identical &= frames_identical(&parallel_frame, &single_frame);
-        drop(single_frame);
-        let start = Instant::now();
-        let cast_frame = camera.render_ray_cast(&scene, seed);
-        ray_cast.push(start.elapsed().as_secs_f64() * 1e3);
-        let agree = parallel_frame
-            .status
-            .iter()
-            .zip(&parallel_frame.surface)
-            .zip(cast_frame.status.iter().zip(&cast_frame.surface))
-            .filter(|(a, b)| a == b)
-            .count();
-        agreement = agreement.min(agree as f64 / parallel_frame.status.len() as f64);
-        progress.inc(1);
-    }
-    progress.finish_and_clear();
-    let pixels = frame.depth_m.len() as f64;
-    let object = Surface::Object(0);
-    let render_ms_median = median(&mut with_mug);
-    let table_only_ms_median = median(&mut baseline);
-    let render_ms_median_one_thread = median(&mut single);
-    let ray_cast_ms_median = median(&mut ray_cast);
-    let report = RenderBench {
-        workload: format!(
-            "{}x{} frame of the table and a procedural mug (seed {}) from the configured camera, Kinect v1 noise",
-            config.camera.width_px, config.camera.height_px, args.seed
-        ),
-        width_px: config.camera.width_px,
-        height_px: config.camera.height_px,
-        threads: rayon::current_num_threads(),
-        repeats: args.repeats,
-        seed: args.seed,
-        scene_build_ms,
-        render_ms_median,
-        render_ms_p90: percentile(&mut with_mug, 0.9),
-        render_cpu_ms_median: median(&mut with_mug_cpu),
-        render_ms_median_one_thread,
-        render_cpu_ms_median_one_thread: median(&mut single_cpu),
-        parallel_speedup: render_ms_median_one_thread / render_ms_median,
-        ray_cast_ms_median,
-        ratio_to_ray_cast: render_ms_median / ray_cast_ms_median,
-        ray_cast_agreement: agreement,
-        table_only_ms_median,
-        ratio_to_table_only: render_ms_median / table_only_ms_median,
-        page_faults_per_frame: faults as f64 / args.repeats as f64,
-        valid_fraction: frame.valid_fraction(),
-        object_hit_fraction: frame.count(|_, s| s == object) as f64 / pixels,
-        object_valid_fraction: frame.count(|r, s| s == object && r == Return::Valid) as f64 / pixels,
-        one_thread_frames_identical: identical,
-        goal_ms: RENDER_GOAL_MS,
-        meets_goal: render_ms_median < RENDER_GOAL_MS,
-        load_average: load_average(),
-    };
-    super::emit(true, &report, |_| String::new())?;
-    Ok(ExitCode::SUCCESS)
-}
-
 /// What `cell camera record` reports.
 #[derive(Debug, Serialize)]
 struct RecordReport {
@@ -504,7 +329,7 @@ fn depth_grey(cloud: &crate::cloud::PointCloud) -> Vec<u8> {
 /// length sees them: rendered with the Kinect's image centre as principal point,
 /// the depth encoded as raw 11-bit values, the accelerometer at rest under the
 /// scene's mount, colour by surface.
-fn sim_frames(
+pub(super) fn sim_frames(
     config: &CellConfig,
     scene: &Scene,
     base_from_camera: &Pose,
@@ -638,192 +463,4 @@ fn record(config_path: &Path, args: RecordArgs) -> anyhow::Result<ExitCode> {
         )
     })?;
     Ok(ExitCode::SUCCESS)
-}
-
-/// Options of `cell bench camera`.
-#[derive(Debug, Args)]
-pub struct CameraBenchArgs {
-    /// Timed conversions of one 640x480 frame (the median is reported).
-    #[arg(long, default_value_t = 50)]
-    pub repeats: usize,
-    /// Frames of the fakenect recording the frame rate is measured on.
-    #[arg(long, default_value_t = 60)]
-    pub frames: usize,
-    /// Seed of the mug model and the frame's noise.
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
-    /// Print JSON (always JSON; accepted for uniformity).
-    #[arg(long)]
-    pub json: bool,
-}
-
-/// What `cell bench camera` reports.
-#[derive(Debug, Serialize)]
-struct CameraBench {
-    workload: String,
-    width_px: u32,
-    height_px: u32,
-    repeats: usize,
-    /// Median time (ms) to convert one raw 11-bit frame to an organised cloud.
-    conversion_ms_median: f64,
-    conversion_ms_p90: f64,
-    /// Time (ms) to build the raw-to-metres table (once per device).
-    table_build_ms: f64,
-    conversion_goal_ms: f64,
-    meets_conversion_goal: bool,
-    /// The backend against fakenect: snapshots (grab + conversion) per second,
-    /// each taking one frame of a recording made at `recorded_fps`.
-    fakenect: Option<FakenectRate>,
-    /// Why there is no fakenect figure (no `kinect` feature, no fakenect).
-    fakenect_skipped: Option<String>,
-    load_average: Option<[f64; 3]>,
-}
-
-/// The frame rate delivered from fakenect.
-#[derive(Debug, Serialize)]
-struct FakenectRate {
-    library: PathBuf,
-    frames: usize,
-    recorded_fps: f64,
-    delivered_fps: f64,
-    /// Median time of one grab (wait for the frame, copy, accelerometer) (ms).
-    grab_ms_median: f64,
-}
-
-/// Where Debian's fakenect library is.
-#[cfg(feature = "kinect")]
-pub const FAKENECT_LIBRARY: &str = "/usr/lib/x86_64-linux-gnu/fakenect/libfreenect.so.0.5";
-
-/// Conversion cost goal of `cell bench camera` (ms per 640x480 frame).
-const CONVERSION_GOAL_MS: f64 = 5.0;
-
-/// Runs `cell bench camera`.
-pub fn bench_camera(config_path: &Path, args: CameraBenchArgs) -> anyhow::Result<ExitCode> {
-    anyhow::ensure!(args.repeats > 0, "--repeats must be at least 1");
-    anyhow::ensure!(args.frames >= 2, "--frames must be at least 2");
-    let config = CellConfig::load(config_path)?;
-    let table = TableBox::from(&config.table);
-    let (mug, _) = generate(Category::Mug, args.seed);
-    let mut scene = Scene::new(Some(table));
-    let base_from_mug = Pose::new(
-        nalgebra::Vector3::new(table.center_xy_m[0], table.center_xy_m[1], table.height_m),
-        nalgebra::Vector3::z() * 1.2,
-    );
-    scene
-        .add("mug", mug, base_from_mug)
-        .context("bench scene")?;
-    let dir = std::env::temp_dir().join(format!("gc-bench-camera-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir)?;
-    let frame = sim_frames(&config, &scene, &config.base_from_camera(), 1, args.seed).remove(0);
-    let (w, h) = (frame.width, frame.height);
-    let started = Instant::now();
-    let table_m = frame.registration.depth_table_m();
-    let table_build_ms = started.elapsed().as_secs_f64() * 1e3;
-    let encoding = DepthEncoding::Disparity11 { table_m };
-    let k = frame.registration.intrinsics(w, h);
-    let range = [
-        config.camera.min_range_m as f32,
-        config.camera.max_range_m as f32,
-    ];
-    let mut times = Vec::with_capacity(args.repeats);
-    let mut valid = 0;
-    for _ in 0..args.repeats {
-        let started = Instant::now();
-        let cloud = depth_to_cloud(&frame.depth_raw, w, &encoding, &k, range);
-        times.push(started.elapsed().as_secs_f64() * 1e3);
-        valid = std::hint::black_box(&cloud)
-            .points
-            .iter()
-            .filter(|p| p.z.is_finite())
-            .count();
-    }
-    let conversion_ms_median = median(&mut times);
-    let (fakenect, fakenect_skipped) = match fakenect_rate(&frame, &dir, args.frames, range) {
-        Ok(rate) => (Some(rate), None),
-        Err(why) => (None, Some(why)),
-    };
-    std::fs::remove_dir_all(&dir).ok();
-    let report = CameraBench {
-        workload: format!(
-            "one {w}x{h} raw 11-bit frame of a mug on the table ({valid} valid points) converted to an organised cloud"
-        ),
-        width_px: w,
-        height_px: h,
-        repeats: args.repeats,
-        conversion_ms_median,
-        conversion_ms_p90: percentile(&mut times, 0.9),
-        table_build_ms,
-        conversion_goal_ms: CONVERSION_GOAL_MS,
-        meets_conversion_goal: conversion_ms_median < CONVERSION_GOAL_MS,
-        fakenect,
-        fakenect_skipped,
-        load_average: super::bench::load_average(),
-    };
-    println!("{}", serde_json::to_string_pretty(&report)?);
-    Ok(ExitCode::SUCCESS)
-}
-
-#[cfg(feature = "kinect")]
-fn fakenect_rate(
-    frame: &RawFrame,
-    dir: &Path,
-    frames: usize,
-    range: [f32; 2],
-) -> Result<FakenectRate, String> {
-    use crate::hw::kinect::device::{Kinect, KinectOptions};
-    let library = PathBuf::from(FAKENECT_LIBRARY);
-    if !library.exists() {
-        return Err(format!(
-            "{}: missing (apt-get install libfreenect-dev)",
-            library.display()
-        ));
-    }
-    let recording = dir.join("recording");
-    frame
-        .write_recording(&recording, frames)
-        .map_err(|e| e.to_string())?;
-    // fakenect reads FAKENECT_PATH when it first plays; nothing else in this
-    // process reads the environment concurrently.
-    std::env::set_var("FAKENECT_PATH", &recording);
-    std::env::set_var("FAKENECT_LOOP", "0");
-    let mut kinect = Kinect::open(KinectOptions {
-        index: 0,
-        rgb: true,
-        frame_timeout_s: 2.0,
-        settle_frames: 0,
-        library: Some(library.clone()),
-    })
-    .map_err(|e| e.to_string())?;
-    // The first grab starts playback; time the rest.
-    kinect.grab().map_err(|e| e.to_string())?;
-    let started = Instant::now();
-    let mut grabs = Vec::with_capacity(frames);
-    for _ in 1..frames {
-        let t = Instant::now();
-        let f = kinect.grab().map_err(|e| e.to_string())?;
-        std::hint::black_box(kinect.to_cloud(&f, range));
-        grabs.push(t.elapsed().as_secs_f64() * 1e3);
-    }
-    let elapsed = started.elapsed().as_secs_f64();
-    Ok(FakenectRate {
-        library,
-        frames,
-        recorded_fps: 30.0,
-        delivered_fps: (frames - 1) as f64 / elapsed,
-        grab_ms_median: median(&mut grabs),
-    })
-}
-
-#[cfg(not(feature = "kinect"))]
-fn fakenect_rate(
-    _frame: &RawFrame,
-    _dir: &Path,
-    _frames: usize,
-    _range: [f32; 2],
-) -> Result<FakenectRate, String> {
-    Err(
-        "built without the kinect feature (cargo build --release --features kinect --bin cell)"
-            .into(),
-    )
 }

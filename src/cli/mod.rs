@@ -6,11 +6,9 @@
 pub mod bench;
 mod calibrate;
 mod camera;
-mod can;
 mod cell;
 mod eval;
 mod execute;
-mod fri;
 pub mod ipc;
 mod objects;
 mod output;

@@ -69,14 +69,14 @@ pub fn bench(args: CanBenchArgs) -> anyhow::Result<ExitCode> {
     )?;
     drop(hub);
     progress.finish_and_clear();
-    let base = super::bench::median(&mut in_process);
+    let base = super::median(&mut in_process);
     let figures = |backend, samples: &mut Vec<f64>| BackendFigures {
         backend,
         round_trips: samples.len(),
-        median_us: super::bench::median(samples),
-        p99_us: super::bench::percentile(samples, 0.99),
-        max_us: super::bench::percentile(samples, 1.0),
-        median_ratio_to_in_process: super::bench::median(samples) / base,
+        median_us: super::median(samples),
+        p99_us: super::percentile(samples, 0.99),
+        max_us: super::percentile(samples, 1.0),
+        median_ratio_to_in_process: super::median(samples) / base,
     };
     let report = CanBench {
         workload: format!(
@@ -88,7 +88,7 @@ pub fn bench(args: CanBenchArgs) -> anyhow::Result<ExitCode> {
             figures("cross-process (AF_UNIX hub)", &mut cross_process),
         ],
     };
-    super::emit(true, &report, |_| String::new())?;
+    crate::cli::emit(true, &report, |_| String::new())?;
     Ok(ExitCode::SUCCESS)
 }
 

@@ -1,6 +1,6 @@
 //! `cell bench fri`: the FRI driver against the robot simulator over loopback UDP.
 
-use super::bench::percentile;
+use super::percentile;
 use crate::clock::{Clock, SystemClock};
 use crate::config::CellConfig;
 use crate::hw::fri::driver::DriverCounters;
@@ -92,7 +92,7 @@ pub struct FriBenchReport {
 /// Runs `cell bench fri`.
 pub fn bench_fri(config: &Path, args: FriBenchArgs) -> anyhow::Result<ExitCode> {
     let report = run_bench(config, &args)?;
-    super::emit(args.json, &report, |r| {
+    crate::cli::emit(args.json, &report, |r| {
         format!(
             "FRI at {:.0} Hz for {:.1} s: answer latency p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs \
              ({} answers); {} missed cycles of {}; {} round trips, {} aborted, {} drops to monitor; \
