@@ -6,13 +6,12 @@
 //! every wait has a timeout and no test asserts how long anything took.
 
 use graspcell::clock::{Clock, SystemClock};
-use graspcell::hw::fri::datagram::{InterfaceState, RobotData, RobotState};
 use graspcell::hw::fri::{
-    ControlMode, DriverConfig, FriDriver, FriError, FriEvent, FriState, MeasurementDatagram,
-    Quality, RobotPeer,
+    DriverConfig, FriDriver, FriError, FriEvent, FriState, MeasurementDatagram, Quality, RobotPeer,
 };
 use graspcell::sim::fri::{
-    spawn_udp, DropReason, QualityThresholds, SimConfig, SimHandle, LBR4_VELOCITY_LIMIT_RAD_S,
+    spawn_udp, DropReason, FriSimulator, QualityThresholds, SimConfig, SimHandle,
+    LBR4_VELOCITY_LIMIT_RAD_S,
 };
 use graspcell::trajectory::{JointLimits, Trajectory};
 use std::sync::Arc;
@@ -317,29 +316,18 @@ fn free_loopback_addr() -> std::net::SocketAddr {
 }
 
 /// A well-formed measurement of a robot in command mode at PERFECT quality whose
-/// joints are at `q`: what a spoofer on the KRC network would send.
-fn forged_measurement(seq: u16, q: [f32; 7]) -> MeasurementDatagram {
-    MeasurementDatagram {
-        send_seq_count: seq,
-        interface: InterfaceState {
-            state: FriState::Command,
-            quality: Quality::Perfect,
-            desired_msr_sample_time_s: 0.002,
-            desired_cmd_sample_time_s: 0.002,
-            ..Default::default()
-        },
-        robot: RobotState {
-            power: 0x7f,
-            control: ControlMode::Position,
-            ..Default::default()
-        },
-        data: RobotData {
-            msr_jnt_pos: q,
-            cmd_jnt_pos: q,
-            ..Default::default()
-        },
-        ..Default::default()
-    }
+/// joints are at `q`: what a spoofer on the KRC network would send (a second
+/// simulated robot's measurement, promoted to command mode).
+fn forged_measurement(q: [f64; 7]) -> MeasurementDatagram {
+    let mut robot = FriSimulator::new(SimConfig {
+        initial_joints_rad: q,
+        ..SimConfig::default()
+    })
+    .unwrap();
+    let mut m = robot.poll(Duration::ZERO).expect("the first measurement");
+    m.interface.state = FriState::Command;
+    m.interface.quality = Quality::Perfect;
+    m
 }
 
 /// Issue 21 item 3: while the arm moves, a second socket on the same host sends
@@ -379,9 +367,11 @@ fn a_second_sender_cannot_steer_the_commanded_stream() {
         let spoofing = scope.spawn(|| {
             let (mut sent, mut replies) = (0u32, 0u32);
             let mut buf = [0u8; 2048];
+            let mut forged = forged_measurement([1.0; 7]);
             while !done.load(std::sync::atomic::Ordering::Relaxed) {
+                // Numbered ahead of the robot's latest measurement.
                 let seq = driver.status().last_seq.unwrap_or(0);
-                let forged = forged_measurement(seq.wrapping_add(100 + sent as u16 % 50), [1.0; 7]);
+                forged.send_seq_count = seq.wrapping_add(100 + sent as u16 % 50);
                 spoofer
                     .send_to(&forged.encode(), driver.local_addr())
                     .unwrap();

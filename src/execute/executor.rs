@@ -1244,4 +1244,198 @@ mod tests {
         let want = req.pregrasp_joints_rad;
         assert!((0..7).all(|j| (q[j] - want[j]).abs() < 1e-5), "{q:?}");
     }
+
+    /// Issue 21 item 5: the safety layer as a property, checked on what the
+    /// simulated robot received (its datagram-level record of commands), not on the
+    /// executor's own bookkeeping.
+    mod safety_property {
+        use super::*;
+        use proptest::prelude::*;
+
+        /// Why the commands the robot received break the cell's limits, if they do:
+        /// URDF joint positions; the configured velocity (URDF x
+        /// `limits.joint_velocity_scale`) and acceleration between consecutive
+        /// cycles in command mode (allowing the f32 rounding on the wire); the palm
+        /// at least `table.palm_clearance_m` above the table and inside the workspace
+        /// (1 mm slack: the safety layer checks every 5 ms of trajectory time).
+        fn unsafe_command(
+            robot: &Robot,
+            cell: &CellConfig,
+            dt_s: f64,
+            commands: &[crate::sim::fri::ReceivedCommand],
+        ) -> Option<String> {
+            let arm = &robot.description.variables[..JOINTS];
+            let rounding = |q: f64| q.abs() * f64::from(f32::EPSILON);
+            let min_z = cell.table.height_m + cell.table.palm_clearance_m - 1e-3;
+            let (lo, hi) = (cell.workspace.min_m, cell.workspace.max_m);
+            for (i, c) in commands.iter().enumerate() {
+                let q = c.jnt_pos_rad;
+                for j in 0..JOINTS {
+                    if !(arm[j].lower_rad <= q[j] && q[j] <= arm[j].upper_rad) {
+                        return Some(format!("command {i}: joint {j} at {} rad", q[j]));
+                    }
+                }
+                let p = robot.arm().palm(&q).translation.vector;
+                if p.z < min_z {
+                    return Some(format!("command {i}: palm at z {} m", p.z));
+                }
+                if (0..3).any(|k| p[k] < lo[k] - 1e-3 || p[k] > hi[k] + 1e-3) {
+                    return Some(format!("command {i}: palm at {p:?} outside the workspace"));
+                }
+                let in_cmd = |k: usize| {
+                    commands[k].state == FriState::Command
+                        && commands[k + 1].refl_seq_count
+                            == commands[k].refl_seq_count.wrapping_add(1)
+                };
+                if i >= 1 && in_cmd(i - 1) && c.state == FriState::Command {
+                    let prev = commands[i - 1].jnt_pos_rad;
+                    for j in 0..JOINTS {
+                        let v = (q[j] - prev[j]).abs() / dt_s;
+                        let limit = arm[j].velocity_rad_s * cell.limits.joint_velocity_scale
+                            + (rounding(q[j]) + rounding(prev[j])) / dt_s;
+                        if v > limit * (1.0 + 1e-9) {
+                            return Some(format!("command {i}: joint {j} at {v} rad/s > {limit}"));
+                        }
+                    }
+                }
+                if i >= 2 && in_cmd(i - 2) && in_cmd(i - 1) && c.state == FriState::Command {
+                    let (a0, a1) = (commands[i - 2].jnt_pos_rad, commands[i - 1].jnt_pos_rad);
+                    for j in 0..JOINTS {
+                        let a = (q[j] - 2.0 * a1[j] + a0[j]).abs() / (dt_s * dt_s);
+                        let limit = cell.limits.joint_acceleration_rad_s2
+                            + (rounding(q[j]) + 2.0 * rounding(a1[j]) + rounding(a0[j]))
+                                / (dt_s * dt_s);
+                        if a > limit * (1.0 + 1e-9) {
+                            return Some(format!(
+                                "command {i}: joint {j} at {a} rad/s^2 > {limit}"
+                            ));
+                        }
+                    }
+                }
+            }
+            None
+        }
+
+        /// Any number, NaN and the infinities included.
+        fn garbage() -> impl Strategy<Value = f64> {
+            prop_oneof![
+                4 => -4.0..4.0f64,
+                1 => -1e9..1e9f64,
+                1 => Just(f64::NAN),
+                1 => Just(f64::INFINITY),
+                1 => Just(f64::NEG_INFINITY),
+            ]
+        }
+
+        /// A plan: numbers anywhere (kind 0); a palm pose somewhere around the
+        /// table, pre-grasp backed off along its approach, joints by IK without any
+        /// check (kind 1); or joints up to 1 rad from home with their own poses
+        /// (kind 2).
+        fn plan() -> impl Strategy<Value = (u8, [f64; 6], [f64; 7], [f64; 7], f64)> {
+            (
+                prop_oneof![Just(0u8), Just(1u8), Just(2u8), Just(2u8)],
+                (
+                    0.1..1.1f64,
+                    -0.7..0.7f64,
+                    -0.1..0.6f64,
+                    PI - 0.8..PI + 0.8,
+                    -0.8..0.8f64,
+                    -PI..PI,
+                )
+                    .prop_map(|(x, y, z, r, p, w)| [x, y, z, r, p, w]),
+                proptest::array::uniform7(garbage()),
+                proptest::array::uniform7(-2.5..2.5f64),
+                garbage(),
+            )
+        }
+
+        fn request_of(
+            robot: &Robot,
+            (kind, palm, numbers, joints, spread): (u8, [f64; 6], [f64; 7], [f64; 7], f64),
+        ) -> ExecutionRequest {
+            let back = Pose::from_parts(
+                nalgebra::Translation3::new(0.0, 0.0, -robot_offset()),
+                nalgebra::UnitQuaternion::identity(),
+            );
+            match kind {
+                0 => ExecutionRequest {
+                    palm: PoseJson {
+                        xyz: [numbers[0], numbers[1], numbers[2]],
+                        rpy: Some([numbers[3], numbers[4], numbers[5]]),
+                        quat_xyzw: None,
+                    },
+                    pregrasp: PoseJson {
+                        xyz: [numbers[6], numbers[0], numbers[1]],
+                        rpy: Some([numbers[2], numbers[3], numbers[4]]),
+                        quat_xyzw: None,
+                    },
+                    joints_rad: numbers,
+                    pregrasp_joints_rad: joints,
+                    spread_rad: spread,
+                    task: None,
+                    method: None,
+                },
+                1 => {
+                    let palm = pose_from_params(&palm);
+                    let pregrasp = palm * back;
+                    let solve = |pose: &Pose, seed: &ArmJoints| match robot.ik.solve(pose, &[*seed])
+                    {
+                        Ok(s) | Err(s) => s.joints,
+                    };
+                    let pre = solve(&pregrasp, &HOME);
+                    ExecutionRequest {
+                        palm: PoseJson::from(&palm),
+                        pregrasp: PoseJson::from(&pregrasp),
+                        joints_rad: solve(&palm, &pre),
+                        pregrasp_joints_rad: pre,
+                        spread_rad: spread.clamp(0.0, PI),
+                        task: None,
+                        method: None,
+                    }
+                }
+                _ => {
+                    // Mostly around the home pose, some joints beyond their limits.
+                    let pre: ArmJoints = std::array::from_fn(|j| HOME[j] + 0.4 * joints[j]);
+                    let grasp: ArmJoints = std::array::from_fn(|j| {
+                        let step = if numbers[j].is_finite() {
+                            numbers[j].clamp(-1.0, 1.0)
+                        } else {
+                            0.0
+                        };
+                        pre[j] + 0.1 * step
+                    });
+                    ExecutionRequest {
+                        palm: PoseJson::from(&robot.arm().palm(&grasp)),
+                        pregrasp: PoseJson::from(&robot.arm().palm(&pre)),
+                        joints_rad: grasp,
+                        pregrasp_joints_rad: pre,
+                        spread_rad: 0.3,
+                        task: None,
+                        method: None,
+                    }
+                }
+            }
+        }
+
+        fn robot_offset() -> f64 {
+            cell().robot.pregrasp_offset_m
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig { cases: 48, failure_persistence: None, ..ProptestConfig::default() })]
+
+            #[test]
+            fn every_command_the_robot_receives_is_within_the_limits(p in plan()) {
+                let rig = Rig::grasping();
+                let cell = cell();
+                let req = request_of(&rig.robot, p);
+                rig.arm.with_sim(|s| s.record_commands(true));
+                let report = rig.executor(&rig.arm).execute(&req);
+                let (commands, dt_s) = rig.arm.with_sim(|s| (s.take_commands(), s.config().cycle_s));
+                prop_assert!(!commands.is_empty(), "the robot was answered");
+                let verdict = unsafe_command(&rig.robot, &cell, dt_s, &commands);
+                prop_assert!(verdict.is_none(), "{}; {}", verdict.unwrap_or_default(), report.human());
+            }
+        }
+    }
 }
