@@ -419,6 +419,33 @@ fn validate_urdf(urdf: &urdf_rs::Robot, path: &Path) -> Result<(), RobotError> {
     if roots != 1 {
         return Err(err(format!("expected one root link, found {roots}")));
     }
+    // One root and one parent per link still allows a detached joint cycle
+    // (a -> b -> a beside the tree), which `k` would build as a reference cycle
+    // and the flattening would silently drop: every link must hang from the root.
+    let root = urdf
+        .links
+        .iter()
+        .find(|l| !children.contains(l.name.as_str()))
+        .map(|l| l.name.as_str());
+    let mut reached: HashSet<&str> = root.into_iter().collect();
+    let mut frontier: Vec<&str> = reached.iter().copied().collect();
+    while let Some(link) = frontier.pop() {
+        for j in urdf.joints.iter().filter(|j| j.parent.link == link) {
+            if reached.insert(j.child.link.as_str()) {
+                frontier.push(j.child.link.as_str());
+            }
+        }
+    }
+    if let Some(detached) = urdf
+        .links
+        .iter()
+        .find(|l| !reached.contains(l.name.as_str()))
+    {
+        return Err(err(format!(
+            "link {} is not below the root link (its joints form a cycle)",
+            detached.name
+        )));
+    }
     Ok(())
 }
 
@@ -544,6 +571,25 @@ mod tests {
         .to_string();
         assert!(
             err.contains("lbr_a2") && err.contains("non-finite"),
+            "{err}"
+        );
+    }
+
+    /// The fuzzer's URDF crash (issue 21): two links that are each other's child
+    /// beside the tree passed the one-root and one-parent checks; `k` leaked them
+    /// as a reference cycle and the description silently lacked them.
+    #[test]
+    fn a_detached_joint_cycle_is_refused() {
+        let cycle = r#"<link name="ring_a"/><link name="ring_b"/>
+  <joint name="ring_ab" type="fixed"><parent link="ring_a"/><child link="ring_b"/></joint>
+  <joint name="ring_ba" type="fixed"><parent link="ring_b"/><child link="ring_a"/></joint>
+</robot>"#;
+        let text = shipped_urdf().replace("</robot>", cycle);
+        let err = load_text("cycle", &text, &arm_names())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("cycle.urdf") && err.contains("ring_a") && err.contains("cycle"),
             "{err}"
         );
     }
