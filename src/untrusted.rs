@@ -141,9 +141,7 @@ fn decode_payload(bytes: &[u8]) -> Result<(), String> {
     match topic % 10 {
         0 => {
             let m: TrialRequest = from_wire_bytes(body);
-            m.category().map_err(text_of)?;
-            m.task().map_err(text_of)?;
-            m.method().map_err(text_of)?;
+            m.check().map_err(text_of)?;
         }
         1 => {
             let header_size = std::mem::size_of::<CloudHeader>();

@@ -53,6 +53,8 @@ fn start(tag: &str, domain: &Domain) -> Fixture {
         home_joints_rad: HOME_JOINTS_RAD,
         observer: Default::default(),
         protocol: graspcell::ipc::Protocol::Cell,
+        faulty_links: false,
+        stderr_dir: None,
     };
     Fixture {
         cell: Cell::start(options, domain.clone()).expect("cell starts"),
@@ -182,6 +184,71 @@ fn one_trial_through_every_process_then_a_killed_stage_fails_the_trial_and_rejoi
     drop(joints);
     drop(watcher);
     f.finish();
+}
+
+/// Issue 21 item 7: one trial of every fault kind through the whole cell. Nothing
+/// unsafe reaches the robot, no answered trial is missing from the log, nothing
+/// panics or hangs, and every failed trial names its cause.
+#[test]
+fn a_fault_campaign_of_every_kind_is_safe_and_loses_nothing() {
+    use graspcell::cell::chaos::{ChaosOptions, FaultKind};
+    let domain = Domain::temporary("cell-chaos").unwrap();
+    let run_dir = std::env::temp_dir().join(format!("gc-cell-chaos-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&run_dir);
+    let stage = StageArgs {
+        config: PathBuf::from("robot/cell.toml"),
+        instance: domain.services().instance().to_string(),
+        ipc_root: Some(domain.root()),
+        ipc_prefix: domain.prefix(),
+        run_dir: run_dir.clone(),
+    };
+    let mut harness = HarnessOptions::demo(stage).unwrap();
+    harness.bin_dir = bin_dir();
+    harness.hold_s = 0.1;
+    harness.trial_timeout_s = 60.0;
+    let db = CategoryDb::load(Path::new("db/mug")).unwrap();
+    let options = ChaosOptions {
+        trials: FaultKind::ALL.len() as u32,
+        seed: 3,
+        category: "mug".into(),
+        task: "top".into(),
+        method: "laplace".into(),
+        kinds: FaultKind::ALL.to_vec(),
+    };
+    let mut trials = Vec::new();
+    let summary =
+        graspcell::cell::chaos::run(harness, (*domain).clone(), &db, &options, &mut |t| {
+            trials.push(t.clone())
+        })
+        .unwrap();
+    let text = summary.text();
+    assert_eq!(summary.unsafe_commands, 0, "{text}");
+    assert!(summary.commands_audited > 1000, "{text}");
+    assert_eq!(summary.log_rows_lost, 0, "{text}");
+    assert_eq!(summary.panics, 0, "{text}");
+    assert_eq!(summary.hangs, 0, "{text}");
+    let injected = if summary.disk_full.starts_with("not injected") {
+        FaultKind::ALL.len() - 1
+    } else {
+        FaultKind::ALL.len()
+    };
+    assert_eq!(summary.faults.len(), injected, "{text}");
+    for t in &trials {
+        assert!(
+            t.outcome == "completed" || t.cause.is_some(),
+            "{}",
+            t.text()
+        );
+    }
+    let [_, lost, corrupted] = summary.can_frames;
+    assert!(lost + corrupted > 0, "the CAN faults struck: {text}");
+    let [withheld, delayed, spoofed] = summary.fri_withheld_delayed_spoofed;
+    assert!(withheld > 0 && delayed > 0 && spoofed > 0, "{text}");
+    let log = TrialLog::open_existing(&summary.log_path).unwrap();
+    assert_eq!(log.trials().unwrap().len() as u32, summary.log_rows);
+    drop(log);
+    domain.remove().unwrap();
+    let _ = std::fs::remove_dir_all(&run_dir);
 }
 
 #[test]

@@ -6,6 +6,7 @@ use anyhow::Context;
 use clap::Parser;
 use graspcell::clock::{Clock, SystemClock};
 use graspcell::hw::fri::JOINTS;
+use graspcell::sim::audit::CommandAudit;
 use graspcell::sim::fri::{run_udp, FriSimulator, QualityThresholds, SimConfig};
 use std::net::{SocketAddr, UdpSocket};
 use std::path::PathBuf;
@@ -59,6 +60,12 @@ struct Args {
     /// joints in); default: the scene file's directory.
     #[arg(long, requires = "scene")]
     state_dir: Option<PathBuf>,
+    /// Audit every command received against the cell's limits (URDF joint
+    /// positions, configured velocity and acceleration, table clearance, workspace;
+    /// `graspcell::sim::audit`) and keep the running report, as JSON, in FILE
+    /// (rewritten atomically every 100 ms). Needs --config.
+    #[arg(long, value_name = "FILE", requires = "config")]
+    audit: Option<PathBuf>,
     /// Stop after this many seconds; runs until killed if not given.
     #[arg(long)]
     seconds: Option<f64>,
@@ -120,6 +127,9 @@ fn run(args: Args) -> anyhow::Result<()> {
         sim.set_external_force(Some(Box::new(force)));
         tracing::info!(scene = %scene.display(), state = %dir.display(), "contact forces from the scene");
     }
+    if args.audit.is_some() {
+        sim.record_commands(true);
+    }
     let sim = Mutex::new(sim);
     let socket = UdpSocket::bind(args.bind).with_context(|| format!("bind {}", args.bind))?;
     tracing::info!(
@@ -132,14 +142,26 @@ fn run(args: Args) -> anyhow::Result<()> {
     let until = args
         .seconds
         .map(|s| clock.now() + Duration::from_secs_f64(s));
-    run_udp(
-        &sim,
-        &socket,
-        args.pc_addr,
-        &clock,
-        &AtomicBool::new(false),
-        until,
-    )?;
+    let stop = AtomicBool::new(false);
+    std::thread::scope(|scope| -> anyhow::Result<()> {
+        let auditor = match (&args.audit, &args.config) {
+            (Some(file), Some(config)) => {
+                let (sim, stop) = (&sim, &stop);
+                let cell = graspcell::config::CellConfig::load(config)?;
+                let robot = graspcell::robot::Robot::load(&cell)?;
+                Some(scope.spawn(move || audit_commands(sim, stop, file, &robot, &cell)))
+            }
+            _ => None,
+        };
+        let ran = run_udp(&sim, &socket, args.pc_addr, &clock, &stop, until);
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(auditor) = auditor {
+            auditor
+                .join()
+                .unwrap_or_else(|_| Err(anyhow::anyhow!("the auditor panicked")))?;
+        }
+        Ok(ran?)
+    })?;
     let summary = sim.lock().unwrap_or_else(|e| e.into_inner()).summary();
     graspcell::cli::emit(args.json, &summary, |s| {
         format!(
@@ -154,4 +176,39 @@ fn run(args: Args) -> anyhow::Result<()> {
                 .unwrap_or_default()
         )
     })
+}
+
+/// Feeds every command the simulator received to a [`CommandAudit`] and rewrites
+/// `file` with the report every 100 ms until `stop`.
+fn audit_commands(
+    sim: &Mutex<FriSimulator>,
+    stop: &AtomicBool,
+    file: &std::path::Path,
+    robot: &graspcell::robot::Robot,
+    cell: &graspcell::config::CellConfig,
+) -> anyhow::Result<()> {
+    let lock = || sim.lock().unwrap_or_else(|e| e.into_inner());
+    let dt_s = lock().config().cycle_s;
+    let mut audit = CommandAudit::new(robot, cell, dt_s);
+    if let Some(dir) = file.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("--audit {}", file.display()))?;
+    }
+    let mut written = None;
+    loop {
+        let done = stop.load(std::sync::atomic::Ordering::Relaxed);
+        let commands = lock().take_commands();
+        if let Some(why) = audit.check_all(&commands) {
+            tracing::error!("unsafe command received: {why}");
+        }
+        if written.as_ref() != Some(audit.report()) {
+            let json = serde_json::to_vec(audit.report())?;
+            graspcell::fsio::write_atomically(file, &json)
+                .with_context(|| format!("--audit {}", file.display()))?;
+            written = Some(audit.report().clone());
+        }
+        if done {
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }

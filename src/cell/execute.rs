@@ -239,7 +239,15 @@ pub fn run(
                 joints_now(&driver),
             ))
         };
-        let failure = plan.failure().unwrap_or(FailureCause::Other);
+        // Bytes that do not decode as a plan (a buggy peer) are no plan: dropped,
+        // not reported as the trial's end.
+        let failure = match plan.failure().and_then(|f| plan.method().map(|_| f)) {
+            Ok(f) => f,
+            Err(e) => {
+                tracing::error!(trial_id, "malformed plan ignored: {e}");
+                continue;
+            }
+        };
         if failure != FailureCause::None {
             tracing::info!(trial_id, ?failure, "plan failed: holding still");
             send(IpcPhase::Stopped, error_code("plan_failed"))?;

@@ -10,11 +10,14 @@
 use super::setup::{upright_pose, TrialSetup};
 use super::{CellError, StageArgs, STAGES};
 use crate::config::CellConfig;
+use crate::hw::can::{FaultConfig, Hub};
 use crate::ipc::{
     monotonic_now_ns, Domain, JointStates, MessagePublisher, MessageSubscriber, Protocol, Stage,
     TrialRequest, TrialResult,
 };
 use crate::mesh::procedural::{generate, instance_seed, Category};
+use crate::sim::audit::AuditReport;
+use crate::sim::fri_link::FaultyLink;
 use crate::trial::{ObjectRef, Placement};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -50,6 +53,12 @@ pub struct HarnessOptions {
     /// Whose settings the trials' perception and planning use (the cell's, or the
     /// paper's robot protocol).
     pub protocol: Protocol,
+    /// With simulated devices: host the CAN bus and relay FRI through links whose
+    /// faults can be set while the cell runs ([`Cell::faulty_links`]).
+    pub faulty_links: bool,
+    /// Append each process's standard error to `<dir>/<process>.log` (else it is
+    /// inherited).
+    pub stderr_dir: Option<PathBuf>,
 }
 
 impl HarnessOptions {
@@ -72,6 +81,8 @@ impl HarnessOptions {
             home_joints_rad: HOME_JOINTS_RAD,
             observer: super::log::ObserverKind::default(),
             protocol: Protocol::Cell,
+            faulty_links: false,
+            stderr_dir: None,
         })
     }
 }
@@ -102,6 +113,27 @@ pub struct Cell {
     can_interface: String,
     operator: Option<Operator>,
     next_trial_id: u64,
+    /// The CAN hub and FRI relay with settable faults ([`HarnessOptions::faulty_links`]).
+    links: Option<FaultyLinks>,
+    /// Processes that did not stop on SIGTERM and were killed.
+    killed_at_stop: Vec<String>,
+}
+
+/// The device links of a cell started with [`HarnessOptions::faulty_links`].
+pub struct FaultyLinks {
+    /// The hand's CAN bus (loss and corruption: [`Hub::set_faults`]).
+    pub can: Hub,
+    /// The arm's FRI link (withheld, late and spoofed datagrams).
+    pub fri: FaultyLink,
+}
+
+/// How the cell stopped.
+#[derive(Debug, Clone, Default)]
+pub struct StopReport {
+    /// The domain's leftover shared-memory files (none after a clean stop).
+    pub leftover_files: Vec<PathBuf>,
+    /// Processes that did not stop on SIGTERM and were killed.
+    pub killed_after_sigterm: Vec<String>,
 }
 
 struct Operator {
@@ -125,13 +157,33 @@ fn free_udp_port() -> Result<u16, CellError> {
         })
 }
 
-fn spawn(bin_dir: &Path, name: &str, args: &[String], piped: bool) -> Result<Child, CellError> {
-    let program = bin_dir.join(name);
+fn spawn(
+    options: &HarnessOptions,
+    name: &str,
+    args: &[String],
+    piped: bool,
+) -> Result<Child, CellError> {
+    let program = options.bin_dir.join(name);
+    let stderr = match &options.stderr_dir {
+        Some(dir) => {
+            let path = dir.join(format!("{name}.log"));
+            let file = std::fs::create_dir_all(dir)
+                .and_then(|()| {
+                    std::fs::OpenOptions::new()
+                        .create(true)
+                        .append(true)
+                        .open(&path)
+                })
+                .map_err(|source| CellError::Io { path, source })?;
+            Stdio::from(file)
+        }
+        None => Stdio::inherit(),
+    };
     Command::new(&program)
         .args(args)
         .stdin(Stdio::null())
         .stdout(if piped { Stdio::piped() } else { Stdio::null() })
-        .stderr(Stdio::inherit())
+        .stderr(stderr)
         .spawn()
         .map_err(|e| CellError::Process {
             name: program.display().to_string(),
@@ -223,6 +275,32 @@ impl Cell {
                 config.can.interface.clone(),
             )
         };
+        let links = match (options.faulty_links, options.simulated_devices) {
+            (false, _) => None,
+            (true, false) => {
+                return Err(CellError::Invalid(
+                    "faulty links need simulated devices".into(),
+                ))
+            }
+            (true, true) => {
+                let bus = can_interface.trim_start_matches(crate::hw::can::VIRTUAL_PREFIX);
+                let can = Hub::bind_with_faults(bus, FaultConfig::default()).map_err(|e| {
+                    CellError::Device {
+                        device: "CAN hub",
+                        detail: e.to_string(),
+                    }
+                })?;
+                let pc: std::net::SocketAddr = fri_addr
+                    .parse()
+                    .map_err(|e| CellError::Invalid(format!("FRI address {fri_addr}: {e}")))?;
+                let fri = FaultyLink::start(pc, instance_seed(0x6c69_6e6b, pc.port().into()))
+                    .map_err(|source| CellError::Io {
+                        path: PathBuf::from("udp 127.0.0.1:0 (FRI relay)"),
+                        source,
+                    })?;
+                Some(FaultyLinks { can, fri })
+            }
+        };
         let mut cell = Cell {
             options,
             domain,
@@ -234,6 +312,8 @@ impl Cell {
             can_interface,
             operator: None,
             next_trial_id: 0,
+            links,
+            killed_at_stop: Vec::new(),
         };
         if let Err(e) = cell.start_all() {
             cell.shutdown();
@@ -256,7 +336,7 @@ impl Cell {
             .into_iter()
             .chain(self.sim_world_args())
             .collect::<Vec<String>>();
-            let mut hand = spawn(&self.options.bin_dir, "cell-sim-hand", &hand_args, true)?;
+            let mut hand = spawn(&self.options, "cell-sim-hand", &hand_args, true)?;
             // The emulator hosts the virtual bus: wait for its "ready" line.
             let mut line = String::new();
             if let Some(out) = hand.stdout.take() {
@@ -279,12 +359,7 @@ impl Cell {
         }
         for stage in STAGES {
             let args = self.stage_args(stage);
-            let child = spawn(
-                &self.options.bin_dir,
-                &format!("cell-{stage}"),
-                &args,
-                false,
-            )?;
+            let child = spawn(&self.options, &format!("cell-{stage}"), &args, false)?;
             self.stages.push(Process {
                 name: stage.to_string(),
                 args,
@@ -308,13 +383,26 @@ impl Cell {
                 .iter()
                 .map(|q| q.to_string())
                 .collect();
+            // Through the relay, the robot sends to it and binds any port.
+            let (sends_to, binds) = match &self.links {
+                Some(links) => (
+                    links.fri.robot_facing_addr().to_string(),
+                    "127.0.0.1:0".to_string(),
+                ),
+                None => (
+                    self.fri_addr.clone(),
+                    self.fri_robot_addr
+                        .clone()
+                        .unwrap_or_else(|| "127.0.0.1:0".into()),
+                ),
+            };
             let arm_args = vec![
                 "--pc-addr".to_string(),
-                self.fri_addr.clone(),
+                sends_to,
                 "--bind".into(),
-                self.fri_robot_addr
-                    .clone()
-                    .unwrap_or_else(|| "127.0.0.1:0".into()),
+                binds,
+                "--audit".into(),
+                self.audit_path().display().to_string(),
                 "--initial-joints".into(),
                 home.join(","),
                 "--cycle-ms".into(),
@@ -324,7 +412,7 @@ impl Cell {
             .into_iter()
             .chain(self.sim_world_args())
             .collect::<Vec<String>>();
-            let arm = spawn(&self.options.bin_dir, "cell-sim-arm", &arm_args, false)?;
+            let arm = spawn(&self.options, "cell-sim-arm", &arm_args, false)?;
             self.sims.push(Process {
                 name: "cell-sim-arm".into(),
                 args: arm_args,
@@ -378,6 +466,40 @@ impl Cell {
         })
     }
 
+    /// Where the arm simulator keeps its audit of the commands it received.
+    fn audit_path(&self) -> PathBuf {
+        self.options.stage.run_dir.join("sim").join("audit.json")
+    }
+
+    /// The arm simulator's audit of every command it received so far (simulated
+    /// devices only; `None` before its first report).
+    pub fn audit(&self) -> Result<Option<AuditReport>, CellError> {
+        let path = self.audit_path();
+        match std::fs::read(&path) {
+            Ok(bytes) => serde_json::from_slice(&bytes)
+                .map(Some)
+                .map_err(|e| CellError::Invalid(format!("{}: {e}", path.display()))),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(source) => Err(CellError::Io { path, source }),
+        }
+    }
+
+    /// The CAN hub and FRI relay whose faults can be set
+    /// ([`HarnessOptions::faulty_links`]).
+    pub fn faulty_links(&self) -> Option<&FaultyLinks> {
+        self.links.as_ref()
+    }
+
+    /// The executor's FRI address (where the robot's measurements go).
+    pub fn fri_pc_addr(&self) -> &str {
+        &self.fri_addr
+    }
+
+    /// The log file.
+    pub fn log_path(&self) -> &Path {
+        &self.options.log_path
+    }
+
     /// The scene file the simulated devices feel.
     fn sim_scene_path(&self) -> PathBuf {
         self.options.stage.run_dir.join("sim").join("scene.toml")
@@ -411,8 +533,12 @@ impl Cell {
                     "--hold-s".into(),
                     self.options.hold_s.to_string(),
                 ]);
-                if let Some(robot) = &self.fri_robot_addr {
-                    args.extend(["--fri-robot".into(), robot.clone()]);
+                let robot = match &self.links {
+                    Some(links) => Some(links.fri.pc_facing_addr().to_string()),
+                    None => self.fri_robot_addr.clone(),
+                };
+                if let Some(robot) = robot {
+                    args.extend(["--fri-robot".into(), robot]);
                 }
             }
             "log" => args.extend([
@@ -471,7 +597,7 @@ impl Cell {
             if let Ok(Some(status)) = process.child.try_wait() {
                 tracing::warn!(stage = %process.name, %status, "stage exited: restarting");
                 process.child = spawn(
-                    &self.options.bin_dir,
+                    &self.options,
                     &format!("cell-{}", process.name),
                     &process.args,
                     false,
@@ -607,13 +733,16 @@ impl Cell {
         for p in &mut self.stages {
             if !reap(&mut p.child, Duration::from_secs(10)) {
                 tracing::warn!(stage = %p.name, "did not stop on SIGTERM: killed");
+                self.killed_at_stop.push(p.name.clone());
             }
         }
         for p in &mut self.sims {
             terminate(p);
         }
         for p in &mut self.sims {
-            reap(&mut p.child, Duration::from_secs(5));
+            if !reap(&mut p.child, Duration::from_secs(5)) {
+                self.killed_at_stop.push(p.name.clone());
+            }
         }
         self.stages.clear();
         self.sims.clear();
@@ -621,9 +750,17 @@ impl Cell {
 
     /// Stops every process; returns the domain's leftover shared-memory files
     /// (empty after a clean stop).
-    pub fn stop(mut self) -> Result<Vec<PathBuf>, CellError> {
+    pub fn stop(self) -> Result<Vec<PathBuf>, CellError> {
+        Ok(self.stop_with_report()?.leftover_files)
+    }
+
+    /// Stops every process; reports leftover files and who had to be killed.
+    pub fn stop_with_report(mut self) -> Result<StopReport, CellError> {
         self.shutdown();
-        Ok(self.domain.leftover_files()?)
+        Ok(StopReport {
+            leftover_files: self.domain.leftover_files()?,
+            killed_after_sigterm: std::mem::take(&mut self.killed_at_stop),
+        })
     }
 }
 

@@ -20,8 +20,8 @@ use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
 use crate::ipc::{
     monotonic_now_ns, wait_any, CameraFault, CameraStatus, CloudTopic, Domain, ExecutionStatus,
-    FailureCause as IpcCause, FitStatus, Fits, Grade as IpcGrade, GraspPlan, Phase, Stage,
-    StageStatus, Timings, TrialRequest, TrialResult, Wakeable,
+    FailureCause as IpcCause, FitStatus, Fits, Grade as IpcGrade, GraspPlan, Phase, Protocol,
+    Stage, StageStatus, Timings, TrialRequest, TrialResult, Wakeable,
 };
 use crate::robot::Robot;
 use crate::sim::observer::{Attempt, Observation, Observer, ObserverMode};
@@ -101,6 +101,23 @@ struct Trial {
 }
 
 impl Trial {
+    /// A trial just requested.
+    fn new(request: TrialRequest, started_at: UtcTimestamp) -> Trial {
+        Trial {
+            request,
+            began: Instant::now(),
+            started_at,
+            cloud_ns: 0,
+            snapshot_path: None,
+            camera: None,
+            fits: None,
+            plan: None,
+            first_command_ns: 0,
+            closing_joints: None,
+            end: None,
+        }
+    }
+
     /// The stage whose answer is due.
     fn waiting_for(&self) -> &'static str {
         if self.plan.is_some() {
@@ -236,13 +253,34 @@ struct Logger {
     dbs: BTreeMap<String, Option<crate::category::CategoryDb>>,
     /// Recorded trials whose picture is still to be drawn.
     pictures_due: Vec<crate::trial::TrialId>,
+    /// Graded trials the file refused (a full disk), oldest first: written, and
+    /// only then answered, as soon as it takes them.
+    unrecorded: Vec<Concluded>,
+    /// The journal of trials followed and not yet recorded ([`journal_dir`]).
+    journal: PathBuf,
     config: CellConfig,
+}
+
+/// A finished, graded trial and the result the operator gets once it is recorded.
+struct Concluded {
+    row: NewTrial,
+    grading: Grading,
+    source: GradeSource,
+    graded_at: UtcTimestamp,
+    result: TrialResult,
 }
 
 impl Logger {
     fn attempt(&self, trial: &Trial) -> Result<Attempt, String> {
         let Some(plan) = &trial.plan else {
-            return Err("no plan".into());
+            // The executor stopped before the log saw a plan (it refused one the
+            // log missed, e.g. sent before the request reached the log).
+            return match &trial.end {
+                Some(end) => Ok(Attempt::Stopped {
+                    kind: error_kind(end.error_code).to_string(),
+                }),
+                None => Err("no plan".into()),
+            };
         };
         let failure = plan.failure().unwrap_or(IpcCause::Other);
         if failure != IpcCause::None {
@@ -405,14 +443,26 @@ impl Logger {
         Ok(())
     }
 
-    /// Grades, records and returns the result of a finished trial.
-    fn finish(&mut self, trial: Trial, ending: Ending) -> Result<TrialResult, CellError> {
+    /// Grades a finished trial: its row, grade and result, to be recorded.
+    fn finish(&mut self, trial: Trial, ending: Ending) -> Result<Concluded, CellError> {
         let trial_id = trial.request.trial_id;
         let setup = TrialSetup::read(&self.options.run_dir, trial_id).unwrap_or_else(|e| {
             tracing::error!(trial_id, "{e}");
             None
         });
-        let (grading, source, seen) = self.observe(&trial, &ending, setup.as_ref())?;
+        // A trial that cannot be graded is still recorded, as failed, saying why.
+        let (grading, source, seen) = match self.observe(&trial, &ending, setup.as_ref()) {
+            Ok(graded) => graded,
+            Err(e) => (
+                Grading::new(
+                    Grade::Failure,
+                    Some(FailureCause::Other),
+                    Some(format!("not graded: {e}")),
+                )?,
+                GradeSource::Simulated,
+                None,
+            ),
+        };
         let timings = trial.timings();
         let (object, placement, campaign_id, seeds) = match &setup {
             Some(s) => (
@@ -493,24 +543,141 @@ impl Logger {
             })),
             seeds,
         };
-        let id = self.log.record_trial(&new)?;
-        self.log.grade(id, &grading, source, UtcTimestamp::now())?;
-        self.pictures_due.push(id);
-        tracing::info!(trial_id, log_id = id, %grading, "trial graded");
         let cause = match ending {
             Ending::StageDied(_) => IpcCause::StageDied,
             Ending::TimedOut(_) => IpcCause::Timeout,
             Ending::Camera(_) => IpcCause::Camera,
             Ending::Reported => ipc_cause(grading.cause),
         };
-        Ok(TrialResult::new(
+        let result = TrialResult::new(
             trial_id,
             monotonic_now_ns(),
             ipc_grade(grading.grade),
             cause,
             timings,
-        ))
+        );
+        Ok(Concluded {
+            row: new,
+            grading,
+            source,
+            graded_at: UtcTimestamp::now(),
+            result,
+        })
     }
+
+    /// Writes the oldest waiting trial with its grade (one transaction); on success
+    /// returns the result to answer.
+    fn record_oldest(&mut self) -> Option<Result<TrialResult, CellError>> {
+        let c = self.unrecorded.first()?;
+        let written = self
+            .log
+            .record_graded_trial(&c.row, &c.grading, c.source, c.graded_at);
+        Some(match written {
+            Ok(id) => {
+                let c = self.unrecorded.remove(0);
+                unjournal(&self.journal, c.result.trial_id);
+                self.pictures_due.push(id);
+                tracing::info!(trial_id = c.result.trial_id, log_id = id, grading = %c.grading, "trial graded");
+                Ok(c.result)
+            }
+            Err(e) => Err(e.into()),
+        })
+    }
+}
+
+/// Where the log stage keeps one small file per trial it follows, from the request
+/// until the trial's row is written: a log stage that restarts (after a crash or
+/// SIGKILL) records each trial its predecessor was following as failed, "stage log
+/// died during the trial", so no requested trial is missing from the log.
+pub fn journal_dir(log_path: &Path) -> PathBuf {
+    let mut name = log_path.as_os_str().to_owned();
+    name.push(".inflight");
+    PathBuf::from(name)
+}
+
+/// A followed trial's request, as journaled.
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
+struct Journaled {
+    trial_id: u64,
+    stamp_ns: u64,
+    category: String,
+    task: String,
+    method: String,
+    protocol: u32,
+    started_at: String,
+}
+
+fn journal_file(dir: &Path, trial_id: u64) -> PathBuf {
+    dir.join(format!("{trial_id}.json"))
+}
+
+/// Journals a trial now followed; a trial that cannot be journaled (a full disk)
+/// is still followed.
+fn journal_trial(dir: &Path, trial: &Trial) {
+    let r = &trial.request;
+    let (Ok(category), Ok(task), Ok(method)) = (r.category(), r.task(), r.method()) else {
+        return;
+    };
+    let entry = Journaled {
+        trial_id: r.trial_id,
+        stamp_ns: r.stamp_ns,
+        category: category.into(),
+        task: task.into(),
+        method: method.into(),
+        protocol: r.protocol().map_or(0, |p| p.code()),
+        started_at: trial.started_at.to_string(),
+    };
+    let written = serde_json::to_vec(&entry)
+        .map_err(std::io::Error::other)
+        .and_then(|bytes| {
+            std::fs::create_dir_all(dir)?;
+            crate::fsio::write_atomically(&journal_file(dir, r.trial_id), &bytes)
+        });
+    if let Err(e) = written {
+        tracing::warn!(
+            trial_id = r.trial_id,
+            "trial not journaled ({}): {e}",
+            dir.display()
+        );
+    }
+}
+
+fn unjournal(dir: &Path, trial_id: u64) {
+    let _ = std::fs::remove_file(journal_file(dir, trial_id));
+}
+
+/// The trials a previous log stage was following when it died.
+fn journaled(dir: &Path) -> Vec<Trial> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut trials: Vec<Trial> = Vec::new();
+    for path in entries.flatten().map(|e| e.path()) {
+        let read = std::fs::read(&path)
+            .map_err(|e| e.to_string())
+            .and_then(|b| serde_json::from_slice::<Journaled>(&b).map_err(|e| e.to_string()))
+            .and_then(|j| {
+                let protocol = Protocol::from_code(j.protocol).map_err(|e| e.to_string())?;
+                let request =
+                    TrialRequest::new(j.trial_id, j.stamp_ns, &j.category, &j.task, &j.method)
+                        .map_err(|e| e.to_string())?
+                        .with_protocol(protocol);
+                let started_at = j
+                    .started_at
+                    .parse()
+                    .map_err(|e: crate::trial::TrialError| e.to_string())?;
+                Ok(Trial::new(request, started_at))
+            });
+        match read {
+            Ok(trial) => trials.push(trial),
+            Err(e) => {
+                tracing::error!("journal entry {} unreadable, removed: {e}", path.display());
+                let _ = std::fs::remove_file(&path);
+            }
+        }
+    }
+    trials.sort_by_key(|t| t.request.trial_id);
+    trials
 }
 
 /// Where the picture of the trial logged as `log_id` is kept.
@@ -587,17 +754,35 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
         ),
         None => None,
     };
+    let journal = journal_dir(&options.log_path);
     let mut logger = Logger {
         robot: Robot::load(config)?,
         hand: crate::robot::hand::HandModel::load(config)?,
         dbs: BTreeMap::new(),
         pictures_due: Vec::new(),
+        unrecorded: Vec::new(),
+        journal,
         config: config.clone(),
         options,
         log,
         observer,
         trials: BTreeMap::new(),
     };
+    // The trials a killed predecessor was following: recorded as failed.
+    for trial in journaled(&logger.journal) {
+        let id = trial.request.trial_id;
+        tracing::warn!(
+            trial_id = id,
+            "recording a trial the previous log stage was following"
+        );
+        match logger.finish(trial, Ending::StageDied("log")) {
+            Ok(concluded) => logger.unrecorded.push(concluded),
+            Err(e) => {
+                tracing::error!(trial_id = id, "trial not recorded: {e}");
+                unjournal(&logger.journal, id);
+            }
+        }
+    }
     let stage = Stage::start(domain, "log")?;
     let results = stage.publisher::<TrialResult>()?;
     let clouds = stage.cloud_subscriber(CloudTopic::Camera)?;
@@ -609,6 +794,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
     notify::ready("log following trials");
     let mut watchdog = Watchdog::from_env();
     let timeout = Duration::from_secs_f64(logger.options.trial_timeout_s);
+    let mut write_failing = false;
     while !stop_requested() {
         watchdog.ping();
         let inputs: [&dyn Wakeable; 6] = [
@@ -625,22 +811,13 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             Err(e) => return Err(e.into()),
         }
         while let Some(request) = requests.try_receive()? {
-            logger.trials.insert(
-                request.trial_id,
-                Trial {
-                    request,
-                    began: Instant::now(),
-                    started_at: UtcTimestamp::now(),
-                    cloud_ns: 0,
-                    snapshot_path: None,
-                    camera: None,
-                    fits: None,
-                    plan: None,
-                    first_command_ns: 0,
-                    closing_joints: None,
-                    end: None,
-                },
-            );
+            if let Err(e) = request.check() {
+                tracing::warn!("ignoring a malformed trial request: {e}");
+                continue;
+            }
+            let trial = Trial::new(request, UtcTimestamp::now());
+            journal_trial(&logger.journal, &trial);
+            logger.trials.insert(request.trial_id, trial);
         }
         while let Some(cloud) = clouds.try_receive()? {
             let h = *cloud.header();
@@ -660,6 +837,10 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             }
         }
         while let Some(p) = plans.try_receive()? {
+            if let Err(e) = p.failure().and_then(|_| p.method().map(drop)) {
+                tracing::warn!(trial_id = p.trial_id, "ignoring a malformed plan: {e}");
+                continue;
+            }
             if let Some(t) = logger.trials.get_mut(&p.trial_id) {
                 t.plan = Some(p);
             }
@@ -705,20 +886,40 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             let Some(trial) = logger.trials.remove(&id) else {
                 continue;
             };
-            let result = match logger.finish(trial, ending) {
-                Ok(result) => result,
+            match logger.finish(trial, ending) {
+                Ok(concluded) => logger.unrecorded.push(concluded),
                 Err(e) => {
                     tracing::error!(trial_id = id, "trial not recorded: {e}");
-                    TrialResult::new(
+                    unjournal(&logger.journal, id);
+                    results.send(&TrialResult::new(
                         id,
                         monotonic_now_ns(),
                         IpcGrade::Failure,
                         IpcCause::Other,
                         Timings::default(),
-                    )
+                    ))?;
                 }
-            };
-            results.send(&result)?;
+            }
+        }
+        // Oldest first; what the file refuses (a full disk) waits for the next tick,
+        // unanswered, so that no answered trial is missing from the log.
+        while let Some(written) = logger.record_oldest() {
+            match written {
+                Ok(result) => {
+                    results.send(&result)?;
+                    write_failing = false;
+                }
+                Err(e) => {
+                    if !write_failing {
+                        tracing::error!(
+                            waiting = logger.unrecorded.len(),
+                            "trials wait to be recorded: {e}"
+                        );
+                    }
+                    write_failing = true;
+                    break;
+                }
+            }
         }
         logger.draw_pictures();
     }
@@ -734,6 +935,32 @@ pub fn default_log_path(run_dir: &Path) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A killed log stage's successor finds the trials it was following.
+    #[test]
+    fn followed_trials_are_journaled_until_recorded() {
+        let dir = std::env::temp_dir().join(format!("graspcell-journal-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let journal = journal_dir(&dir.join("trials.sqlite"));
+        assert!(journal.ends_with("trials.sqlite.inflight"));
+        let request = TrialRequest::new(41, 7, "mug", "handle", "laplace")
+            .unwrap()
+            .with_protocol(Protocol::PaperRobot);
+        let started: UtcTimestamp = "2026-11-27T03:00:00Z".parse().unwrap();
+        journal_trial(&journal, &Trial::new(request, started));
+        std::fs::write(journal.join("garbage.json"), b"{").unwrap();
+        let found = journaled(&journal);
+        assert_eq!(found.len(), 1);
+        assert_eq!(found[0].request, request);
+        assert_eq!(found[0].started_at, started);
+        assert!(
+            !journal.join("garbage.json").exists(),
+            "unreadable entry removed"
+        );
+        unjournal(&journal, 41);
+        assert!(journaled(&journal).is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn causes_map_both_ways() {

@@ -26,6 +26,7 @@
 //! speaks the systemd notify protocol ([`notify`]) when `NOTIFY_SOCKET` is set.
 
 pub mod camera;
+pub mod chaos;
 pub mod execute;
 pub mod harness;
 pub mod log;

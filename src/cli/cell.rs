@@ -470,7 +470,7 @@ impl Summary {
     }
 }
 
-fn check_method(method: &str) -> anyhow::Result<()> {
+pub(super) fn check_method(method: &str) -> anyhow::Result<()> {
     anyhow::ensure!(
         METHODS.contains(&method),
         "--method {method:?}: unknown (use {})",
@@ -479,7 +479,7 @@ fn check_method(method: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn progress(total: u64, json: bool) -> ProgressBar {
+pub(super) fn progress(total: u64, json: bool) -> ProgressBar {
     let bar = if json {
         ProgressBar::hidden()
     } else {

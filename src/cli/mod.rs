@@ -7,6 +7,7 @@ pub mod bench;
 mod calibrate;
 mod camera;
 mod cell;
+mod chaos;
 mod eval;
 mod execute;
 pub mod ipc;
@@ -81,6 +82,12 @@ pub enum Command {
     /// Run the whole simulated cell as processes for N trials on novel objects and
     /// print a line per trial (grade, cause, snapshot-to-grasp-command time).
     Demo(cell::DemoArgs),
+    /// The fault campaign: whole simulated trials, each with one fault injected at
+    /// random (kill -9 of a stage, CAN loss and corruption, withheld, late and
+    /// spoofed FRI datagrams, corrupted shared-memory payloads, a full log disk);
+    /// reports completed and failed trials, unsafe commands, lost log rows, panics
+    /// and hangs, and exits non-zero on any of the last four.
+    Chaos(chaos::ChaosArgs),
     /// Run the cell with the configured backends until Ctrl-C; `cell trial` sends it work.
     Run(cell::RunArgs),
     /// Send one trial request to a running cell (`cell run`) and print its result;
@@ -149,6 +156,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::IpcPeer(args) => ipc::run_peer(args),
         Command::Demo(args) => cell::demo(&cli.config, args),
         Command::Run(args) => cell::run(&cli.config, args),
+        Command::Chaos(args) => chaos::run(&cli.config, args),
         Command::Trial(args) => trial::trial_command(&cli.config, args),
         Command::Serve(args) => trial::serve(args),
         Command::Campaign(args) => cell::campaign(&cli.config, args),

@@ -1252,70 +1252,6 @@ mod tests {
         use super::*;
         use proptest::prelude::*;
 
-        /// Why the commands the robot received break the cell's limits, if they do:
-        /// URDF joint positions; the configured velocity (URDF x
-        /// `limits.joint_velocity_scale`) and acceleration between consecutive
-        /// cycles in command mode (allowing the f32 rounding on the wire); the palm
-        /// at least `table.palm_clearance_m` above the table and inside the workspace
-        /// (1 mm slack: the safety layer checks every 5 ms of trajectory time).
-        fn unsafe_command(
-            robot: &Robot,
-            cell: &CellConfig,
-            dt_s: f64,
-            commands: &[crate::sim::fri::ReceivedCommand],
-        ) -> Option<String> {
-            let arm = &robot.description.variables[..JOINTS];
-            let rounding = |q: f64| q.abs() * f64::from(f32::EPSILON);
-            let min_z = cell.table.height_m + cell.table.palm_clearance_m - 1e-3;
-            let (lo, hi) = (cell.workspace.min_m, cell.workspace.max_m);
-            for (i, c) in commands.iter().enumerate() {
-                let q = c.jnt_pos_rad;
-                for j in 0..JOINTS {
-                    if !(arm[j].lower_rad <= q[j] && q[j] <= arm[j].upper_rad) {
-                        return Some(format!("command {i}: joint {j} at {} rad", q[j]));
-                    }
-                }
-                let p = robot.arm().palm(&q).translation.vector;
-                if p.z < min_z {
-                    return Some(format!("command {i}: palm at z {} m", p.z));
-                }
-                if (0..3).any(|k| p[k] < lo[k] - 1e-3 || p[k] > hi[k] + 1e-3) {
-                    return Some(format!("command {i}: palm at {p:?} outside the workspace"));
-                }
-                let in_cmd = |k: usize| {
-                    commands[k].state == FriState::Command
-                        && commands[k + 1].refl_seq_count
-                            == commands[k].refl_seq_count.wrapping_add(1)
-                };
-                if i >= 1 && in_cmd(i - 1) && c.state == FriState::Command {
-                    let prev = commands[i - 1].jnt_pos_rad;
-                    for j in 0..JOINTS {
-                        let v = (q[j] - prev[j]).abs() / dt_s;
-                        let limit = arm[j].velocity_rad_s * cell.limits.joint_velocity_scale
-                            + (rounding(q[j]) + rounding(prev[j])) / dt_s;
-                        if v > limit * (1.0 + 1e-9) {
-                            return Some(format!("command {i}: joint {j} at {v} rad/s > {limit}"));
-                        }
-                    }
-                }
-                if i >= 2 && in_cmd(i - 2) && in_cmd(i - 1) && c.state == FriState::Command {
-                    let (a0, a1) = (commands[i - 2].jnt_pos_rad, commands[i - 1].jnt_pos_rad);
-                    for j in 0..JOINTS {
-                        let a = (q[j] - 2.0 * a1[j] + a0[j]).abs() / (dt_s * dt_s);
-                        let limit = cell.limits.joint_acceleration_rad_s2
-                            + (rounding(q[j]) + 2.0 * rounding(a1[j]) + rounding(a0[j]))
-                                / (dt_s * dt_s);
-                        if a > limit * (1.0 + 1e-9) {
-                            return Some(format!(
-                                "command {i}: joint {j} at {a} rad/s^2 > {limit}"
-                            ));
-                        }
-                    }
-                }
-            }
-            None
-        }
-
         /// Any number, NaN and the infinities included.
         fn garbage() -> impl Strategy<Value = f64> {
             prop_oneof![
@@ -1433,7 +1369,8 @@ mod tests {
                 let report = rig.executor(&rig.arm).execute(&req);
                 let (commands, dt_s) = rig.arm.with_sim(|s| (s.take_commands(), s.config().cycle_s));
                 prop_assert!(!commands.is_empty(), "the robot was answered");
-                let verdict = unsafe_command(&rig.robot, &cell, dt_s, &commands);
+                let verdict = crate::sim::audit::CommandAudit::new(&rig.robot, &cell, dt_s)
+                    .check_all(&commands);
                 prop_assert!(verdict.is_none(), "{}; {}", verdict.unwrap_or_default(), report.human());
             }
         }

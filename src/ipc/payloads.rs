@@ -461,6 +461,15 @@ impl TrialRequest {
     pub fn method(&self) -> Result<&str, IpcError> {
         self.method.to_str("trial request method")
     }
+
+    /// Checks every field a receiver reads: the texts and the protocol's code.
+    pub fn check(&self) -> Result<(), IpcError> {
+        self.category()?;
+        self.task()?;
+        self.method()?;
+        self.protocol()?;
+        Ok(())
+    }
 }
 
 /// One point of a cloud (metres); NaN coordinates mark a missing return.

@@ -2,8 +2,10 @@
 //! renders them with a Kinect-like error model, and devices that speak the real
 //! protocols (FRI robot, CAN pucks), so the cell runs and is tested without hardware.
 
+pub mod audit;
 pub mod camera;
 pub mod fri;
+pub mod fri_link;
 pub mod lab;
 pub mod observer;
 pub mod physics;

@@ -538,40 +538,24 @@ impl TrialLog {
     pub fn record_trial(&mut self, trial: &NewTrial) -> Result<TrialId, TrialError> {
         validate_trial(trial)?;
         let path = self.path.clone();
-        self.write("record trial", |tx| {
-            tx.execute(
-                "INSERT INTO trials (started_at, category, task, method, object_name, object_seed,
-                     placement_index, placement_pose, campaign_id, snapshot_path, fits,
-                     planned_pose, planned_joints, outcome, software_version, seeds)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16)",
-                params![
-                    trial.started_at.to_string(),
-                    trial.category,
-                    trial.task,
-                    trial.method,
-                    trial.object.name,
-                    trial.object.seed.map(|s| s.to_string()),
-                    trial.placement.index,
-                    to_json(&trial.placement.base_from_object),
-                    trial.campaign_id,
-                    trial
-                        .snapshot_path
-                        .as_ref()
-                        .map(|p| p.to_string_lossy().into_owned()),
-                    to_json(&trial.fits),
-                    trial.planned_pose.as_ref().map(to_json),
-                    trial.planned_joints.as_ref().map(to_json),
-                    trial.outcome.as_ref().map(to_json),
-                    software_version(),
-                    to_json(&trial.seeds),
-                ],
-            )
-            .map_err(|source| TrialError::Sqlite {
-                path: path.clone(),
-                op: "insert trial",
-                source,
-            })?;
-            Ok(tx.last_insert_rowid())
+        self.write("record trial", |tx| insert_trial(tx, &path, trial))
+    }
+
+    /// Records a trial and its grade in one transaction: both are in the file, or
+    /// neither is (a full disk leaves no ungraded row behind to be recorded twice).
+    pub fn record_graded_trial(
+        &mut self,
+        trial: &NewTrial,
+        grading: &super::grade::Grading,
+        source: super::grade::GradeSource,
+        at: UtcTimestamp,
+    ) -> Result<TrialId, TrialError> {
+        validate_trial(trial)?;
+        let path = self.path.clone();
+        self.write("record graded trial", |tx| {
+            let id = insert_trial(tx, &path, trial)?;
+            super::grade::apply_grade(tx, &path, id, grading, source, at)?;
+            Ok(id)
         })
     }
 
@@ -927,6 +911,47 @@ impl RawRow {
     }
 }
 
+/// Inserts one trial row; returns its id.
+fn insert_trial(
+    tx: &Transaction<'_>,
+    path: &Path,
+    trial: &NewTrial,
+) -> Result<TrialId, TrialError> {
+    tx.execute(
+        "INSERT INTO trials (started_at, category, task, method, object_name, object_seed,
+             placement_index, placement_pose, campaign_id, snapshot_path, fits,
+             planned_pose, planned_joints, outcome, software_version, seeds)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16)",
+        params![
+            trial.started_at.to_string(),
+            trial.category,
+            trial.task,
+            trial.method,
+            trial.object.name,
+            trial.object.seed.map(|s| s.to_string()),
+            trial.placement.index,
+            to_json(&trial.placement.base_from_object),
+            trial.campaign_id,
+            trial
+                .snapshot_path
+                .as_ref()
+                .map(|p| p.to_string_lossy().into_owned()),
+            to_json(&trial.fits),
+            trial.planned_pose.as_ref().map(to_json),
+            trial.planned_joints.as_ref().map(to_json),
+            trial.outcome.as_ref().map(to_json),
+            software_version(),
+            to_json(&trial.seeds),
+        ],
+    )
+    .map_err(|source| TrialError::Sqlite {
+        path: path.to_path_buf(),
+        op: "insert trial",
+        source,
+    })?;
+    Ok(tx.last_insert_rowid())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -981,6 +1006,43 @@ mod tests {
             outcome: None,
             seeds: [("registration".to_string(), 7_u64), ("plan".to_string(), 9)].into(),
         }
+    }
+
+    /// A full disk (here a page limit) fails the write of a graded trial as a
+    /// whole: no row, no grade; once there is room, the same write succeeds once.
+    #[test]
+    fn a_graded_trial_is_recorded_whole_or_not_at_all() {
+        let dir = TempDir::new("full");
+        let mut log = TrialLog::open(dir.0.join("trials.sqlite")).unwrap();
+        let grading =
+            super::super::grade::Grading::new(super::super::grade::Grade::Success, None, None)
+                .unwrap();
+        let source = super::super::grade::GradeSource::Simulated;
+        let at: UtcTimestamp = "2025-03-01T14:06:00Z".parse().unwrap();
+        let pages: i64 = log
+            .conn
+            .query_row("PRAGMA page_count", [], |r| r.get(0))
+            .unwrap();
+        log.conn
+            .query_row(&format!("PRAGMA max_page_count = {pages}"), [], |_| Ok(()))
+            .unwrap();
+        let mut big = sample_trial();
+        big.outcome = Some(serde_json::json!({ "note": "x".repeat(64 * 1024) }));
+        let err = log
+            .record_graded_trial(&big, &grading, source, at)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("trials.sqlite") && err.contains("full"),
+            "{err}"
+        );
+        assert_eq!(log.trial_count().unwrap(), 0);
+        log.conn
+            .query_row("PRAGMA max_page_count = 1000000", [], |_| Ok(()))
+            .unwrap();
+        let id = log.record_graded_trial(&big, &grading, source, at).unwrap();
+        assert_eq!(log.trial_count().unwrap(), 1);
+        assert_eq!(log.grade_history(id).unwrap().len(), 1);
     }
 
     #[test]

@@ -189,6 +189,27 @@ impl Hub {
         Hub::start(name, false, Some(FaultInjector::new(faults)))
     }
 
+    /// Changes the loss and corruption of a hub started with
+    /// [`Hub::bind_with_faults`] from the next frame on (the generator and the
+    /// counts go on; the seed and latency of `faults` are ignored).
+    pub fn set_faults(&self, faults: &FaultConfig) -> Result<(), CanError> {
+        let interface = self.shared.interface.clone();
+        faults.validate(&interface)?;
+        let injector = self
+            .shared
+            .faults
+            .as_ref()
+            .ok_or_else(|| CanError::BadInterface {
+                interface,
+                problem: "the hub was started without fault injection (Hub::bind)".into(),
+            })?;
+        injector
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .set(faults);
+        Ok(())
+    }
+
     /// Counts of frames forwarded, lost and corrupted (all zero without faults).
     pub fn fault_counts(&self) -> FaultCounts {
         self.shared
@@ -760,6 +781,36 @@ mod tests {
         .unwrap()
         .to_string();
         assert!(err.contains("latency"), "{err}");
+    }
+
+    #[test]
+    fn a_hubs_faults_change_at_run_time_and_only_with_injection() {
+        let name = unique("set-faults");
+        let hub = Hub::bind_with_faults(&name, FaultConfig::default()).unwrap();
+        let mut a = UnixBus::connect(&name).unwrap();
+        let mut b = UnixBus::connect(&name).unwrap();
+        let frame = CanFrame::new(0x123, &[1]).unwrap();
+        a.send(&frame).unwrap();
+        assert_eq!(b.recv(Duration::from_secs(5)).unwrap(), Some(frame));
+        let lose_all = FaultConfig {
+            loss_probability: 1.0,
+            ..FaultConfig::default()
+        };
+        hub.set_faults(&lose_all).unwrap();
+        a.send(&frame).unwrap();
+        assert_eq!(b.recv(Duration::from_millis(200)).unwrap(), None);
+        assert_eq!(hub.fault_counts().lost, 1);
+        hub.set_faults(&FaultConfig::default()).unwrap();
+        a.send(&frame).unwrap();
+        assert_eq!(b.recv(Duration::from_secs(5)).unwrap(), Some(frame));
+        let bad = FaultConfig {
+            corrupt_probability: 2.0,
+            ..FaultConfig::default()
+        };
+        assert!(hub.set_faults(&bad).is_err());
+        let plain = Hub::bind(&unique("no-faults")).unwrap();
+        let err = plain.set_faults(&lose_all).unwrap_err().to_string();
+        assert!(err.contains("without fault injection"), "{err}");
     }
 
     #[test]

@@ -197,6 +197,16 @@ impl FaultInjector {
         }
     }
 
+    /// Takes the probabilities, corruption and affected identifiers of `faults`
+    /// (validated), keeping the generator and the counts.
+    pub(super) fn set(&mut self, faults: &FaultConfig) {
+        self.faults = FaultConfig {
+            seed: self.faults.seed,
+            latency: self.faults.latency,
+            ..faults.clone()
+        };
+    }
+
     /// Applies loss and corruption; `None` when the frame is lost.
     pub(super) fn inject(&mut self, frame: &CanFrame) -> Option<CanFrame> {
         self.counts.sent += 1;

@@ -306,6 +306,10 @@ enum Verdict {
     Answer(Expected, i32),
     Late,
     Unrelated,
+    /// A puck's frame that is garbled or answers nothing asked (a corrupted
+    /// frame, or the reply to an exchange given up on): dropped, kept as the reason
+    /// should the wait end without an answer.
+    Noise(HandError),
 }
 
 /// One motion being watched.
@@ -327,6 +331,8 @@ pub struct Hand<B> {
     info: Option<[PuckInfo; 4]>,
     initialised: bool,
     late: VecDeque<Expected>,
+    /// The last frame dropped as noise since the current exchange began.
+    noise: Option<HandError>,
 }
 
 impl<B: CanBus> Hand<B> {
@@ -339,6 +345,7 @@ impl<B: CanBus> Hand<B> {
             info: None,
             initialised: false,
             late: VecDeque::new(),
+            noise: None,
         }
     }
 
@@ -827,6 +834,7 @@ impl<B: CanBus> Hand<B> {
         let expected = Expected { puck, property };
         let request = puck::get_frame(puck::node_id(puck.node()), property);
         let description = expected.describe();
+        self.noise = None;
         for attempt in 1..=self.timing.attempts {
             self.check_deadline(deadline, op, puck, timeout)?;
             self.bus.send(&request)?;
@@ -835,6 +843,10 @@ impl<B: CanBus> Hand<B> {
             }
             tracing::debug!(%puck, %property, attempt, "no reply");
             self.remember_late(expected);
+        }
+        // Frames came, but never the answer: say what they were.
+        if let Some(noise) = self.noise.take() {
+            return Err(noise);
         }
         Err(HandError::NoReply {
             puck,
@@ -935,6 +947,14 @@ impl<B: CanBus> Hand<B> {
                         return Ok(None);
                     }
                 }
+                Verdict::Noise(noise) => {
+                    tracing::warn!("dropped: {noise}");
+                    self.noise = Some(noise);
+                    ignored += 1;
+                    if ignored > MAX_IGNORED_PER_REPLY {
+                        return Ok(None);
+                    }
+                }
             }
         }
     }
@@ -960,14 +980,14 @@ impl<B: CanBus> Hand<B> {
             problem,
         };
         let answered = match address.destination {
-            group::PROPERTY_REPLY => {
-                let (property, value) = decode_property_reply(frame.data()).map_err(garbled)?;
-                Property::from_id(property).map(|p| (p, value))
-            }
-            group::POSITION_REPLY => {
-                let (counts, _secondary) = decode_position(frame.data()).map_err(garbled)?;
-                Some((Property::P, counts))
-            }
+            group::PROPERTY_REPLY => match decode_property_reply(frame.data()) {
+                Ok((property, value)) => Property::from_id(property).map(|p| (p, value)),
+                Err(problem) => return Ok(Verdict::Noise(garbled(problem))),
+            },
+            group::POSITION_REPLY => match decode_position(frame.data()) {
+                Ok((counts, _secondary)) => Some((Property::P, counts)),
+                Err(problem) => return Ok(Verdict::Noise(garbled(problem))),
+            },
             _ => None,
         };
         let unexpected = || HandError::Unexpected {
@@ -976,7 +996,7 @@ impl<B: CanBus> Hand<B> {
             frame: *frame,
         };
         let Some((property, value)) = answered else {
-            return Err(unexpected());
+            return Ok(Verdict::Noise(unexpected()));
         };
         let answer = Expected {
             puck: source,
@@ -991,7 +1011,7 @@ impl<B: CanBus> Hand<B> {
             self.late.remove(i);
             return Ok(Verdict::Late);
         }
-        Err(unexpected())
+        Ok(Verdict::Noise(unexpected()))
     }
 }
 
@@ -1010,6 +1030,41 @@ mod tests {
             config.can.reply_timeout_s
         );
         assert_eq!(timing.attempts, HandTiming::default().attempts);
+    }
+
+    /// Issue 21's fault campaign: after a corrupted frame, the reply to the
+    /// exchange given up on arrived during the next one and failed it, and so on
+    /// for every later trial. Such frames are dropped while the answer is awaited.
+    #[test]
+    fn stale_and_garbled_frames_are_dropped_while_the_answer_is_awaited() {
+        let bus = crate::hw::can::VirtualBus::new("noise");
+        let mut pucks = bus.endpoint();
+        let clock = Arc::new(crate::clock::SystemClock::new());
+        let mut hand = Hand::new(bus.endpoint(), clock.clone(), HandTiming::default());
+        let f1 = Puck::F1.node();
+        let garbled =
+            CanFrame::new(puck::reply_id(f1, group::PROPERTY_REPLY), &[0x81, 0x00]).unwrap();
+        pucks
+            .send(&puck::property_reply_frame(f1, Property::Stat.id(), 2))
+            .unwrap();
+        pucks.send(&garbled).unwrap();
+        pucks
+            .send(&puck::property_reply_frame(f1, Property::Tstop.id(), 50))
+            .unwrap();
+        let timeout = Duration::from_secs(2);
+        let deadline = clock.now() + timeout;
+        let got = hand.get(Puck::F1, Property::Tstop, deadline, "test", timeout);
+        assert_eq!(got.unwrap(), 50);
+        // A puck that only ever garbles: the exchange fails, naming the frame.
+        for _ in 0..HandTiming::default().attempts {
+            pucks.send(&garbled).unwrap();
+        }
+        let deadline = clock.now() + timeout;
+        let err = hand
+            .get(Puck::F1, Property::Tstop, deadline, "test", timeout)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("garbled reply 566#8100 to get TSTOP"), "{err}");
     }
 
     #[test]
