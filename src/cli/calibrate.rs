@@ -10,13 +10,12 @@ use crate::calib::{
     Solution, SolveOptions, Weights,
 };
 use crate::config::CellConfig;
-use crate::geometry::{matrix_rows, parse_numbers, pose_error, pose_from_params, PoseJson};
+use crate::geometry::{matrix_rows, parse_numbers, pose_from_params, PoseJson};
 use crate::robot::Robot;
 use crate::sim::camera::Intrinsics;
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use nalgebra::Vector3;
-use nalgebra::{Isometry3, Translation3};
+use nalgebra::{Isometry3, Vector3};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -171,34 +170,27 @@ fn collect_command(config_path: &Path, args: CollectArgs) -> anyhow::Result<Exit
         ..TargetRig::standard()
     };
     let nominal = config.base_from_camera();
-    let true_camera = match &args.sim_camera_error {
+    let camera_error = match &args.sim_camera_error {
         Some(text) => {
             let e = parse_numbers(text, 6, "--sim-camera-error x,y,z,roll,pitch,yaw")?;
-            let e = pose_from_params(&[e[0], e[1], e[2], e[3], e[4], e[5]]);
-            Isometry3::from_parts(
-                Translation3::from(nominal.translation.vector + e.translation.vector),
-                e.rotation * nominal.rotation,
-            )
+            pose_from_params(&[e[0], e[1], e[2], e[3], e[4], e[5]])
         }
-        None => nominal,
+        None => Isometry3::identity(),
     };
-    let true_rig = match &args.sim_target_error {
+    let target_error = match &args.sim_target_error {
         Some(text) => {
             let e = parse_numbers(text, 3, "--sim-target-error x,y,z")?;
-            rig.with_centre(rig.flange_from_centre_m + Vector3::new(e[0], e[1], e[2]))
+            Vector3::new(e[0], e[1], e[2])
         }
-        None => rig,
+        None => Vector3::zeros(),
     };
+    let truth = SimTruth::with_errors(&nominal, rig, &camera_error, &target_error);
     let robot = Arc::new(Robot::load(&config)?);
     let prior = CameraPrior {
         intrinsics: Intrinsics::from(&config.camera),
         base_from_camera: nominal,
     };
     let options = CollectOptions::new(args.poses, rig.radius_m, args.seed);
-    let truth = SimTruth {
-        base_from_camera: true_camera,
-        rig: true_rig,
-    };
     let (mut arm, mut camera) = simulated_rig(
         &config,
         Arc::clone(&robot),
@@ -260,7 +252,7 @@ fn collect_command(config_path: &Path, args: CollectArgs) -> anyhow::Result<Exit
     };
     file.save(&out)?;
     let samples_file = out.display().to_string();
-    let (dp, dr) = pose_error(&true_camera, &nominal);
+    let (dp, dr) = truth.camera_error_from(&nominal);
     let report = CollectReport {
         next: format!("cell calibrate solve --samples {samples_file} --method points"),
         samples_file,
@@ -289,10 +281,10 @@ fn collect_command(config_path: &Path, args: CollectArgs) -> anyhow::Result<Exit
             .collect(),
         simulation: SimulationReport {
             nominal_base_from_camera: PoseJson::from(&nominal),
-            true_base_from_camera: PoseJson::from(&true_camera),
+            true_base_from_camera: PoseJson::from(&truth.base_from_camera),
             true_from_nominal_mm: dp * 1e3,
             true_from_nominal_deg: dr.to_degrees(),
-            true_target_in_flange_m: true_rig.flange_from_centre_m.into(),
+            true_target_in_flange_m: truth.rig.flange_from_centre_m.into(),
         },
         plan_s,
         capture_s,

@@ -1,9 +1,10 @@
 //! `cell demo`, `cell run`, `cell trial` and `cell campaign`: the cell as processes.
 
 use super::emit;
+use crate::cell::campaign::{graded_trials, CampaignSpec, NovelObject, PlannedTrial, TaskReport};
 use crate::cell::harness::{novel_object, placement_rng, random_placement, Cell, HarnessOptions};
 use crate::cell::plan::{Databases, METHODS};
-use crate::cell::setup::{novel_object_in, ObjectSource, TrialSetup};
+use crate::cell::setup::{ObjectSource, TrialSetup};
 use crate::cell::{span_ms, stop_requested, StageArgs, SYSTEM_IPC_PREFIX};
 use crate::config::CellConfig;
 use crate::ipc::{monotonic_now_ns, Domain, Stage, TrialRequest, TrialResult};
@@ -73,11 +74,9 @@ pub struct WorldArgs {
     pub lab: super::eval::LabArgs,
 }
 
-/// The novel objects of a demo or campaign, in order: each with its source and
-/// the height (m) of its lowest point in its own frame (placements stand it on the
-/// table).
+/// The novel objects of a demo or campaign, in order, and the lab's errors.
 struct World {
-    objects: Vec<(crate::trial::ObjectRef, ObjectSource, f64)>,
+    objects: Vec<NovelObject>,
     lab: LabErrors,
 }
 
@@ -108,55 +107,17 @@ impl World {
                     "{}: no object of category {category}",
                     dir.join(crate::eval::objects::MANIFEST_FILE).display()
                 );
-                mine.into_iter()
-                    .map(|o| {
-                        let min_z = o
-                            .mesh
-                            .vertices
-                            .iter()
-                            .map(|v| v.z)
-                            .fold(f64::INFINITY, f64::min);
-                        (
-                            crate::trial::ObjectRef {
-                                name: o.name,
-                                seed: None,
-                            },
-                            ObjectSource::File {
-                                path: o.path,
-                                scale: o.scale,
-                            },
-                            min_z,
-                        )
-                    })
-                    .collect()
+                mine.into_iter().map(NovelObject::from_user).collect()
             }
-            None => (0..count as u64)
-                .map(|i| {
-                    let (object, source) =
-                        novel_object_in(args.family.into(), category, seed, i, db);
-                    (object, source, 0.0)
-                })
-                .collect(),
+            None => NovelObject::procedural(args.family.into(), category, seed, count, db),
         };
         Ok(World { objects, lab })
     }
 
     /// Object `i` (cycling through the user's objects).
-    fn object(&self, i: usize) -> &(crate::trial::ObjectRef, ObjectSource, f64) {
+    fn object(&self, i: usize) -> &NovelObject {
         &self.objects[i % self.objects.len()]
     }
-
-    /// The lab's draw of a trial: the campaign's hand–eye error and the trial's
-    /// joint errors; `None` for an exact cell.
-    fn draw(&self, campaign_seed: u64, trial_seed: u64) -> Option<LabDraw> {
-        (self.lab != LabErrors::NONE).then(|| self.lab.draw(campaign_seed, trial_seed))
-    }
-}
-
-/// `placement` with the object's lowest point (`min_z` in its frame) on the table.
-fn on_table(mut placement: crate::trial::Placement, min_z: f64) -> crate::trial::Placement {
-    placement.base_from_object.xyz[2] -= min_z;
-    placement
 }
 
 /// Options of `cell demo`.
@@ -536,19 +497,19 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
             break;
         }
         cell.supervise()?;
-        let (object, source, min_z) = world.object(i).clone();
+        let novel = world.object(i);
         let mut rng = placement_rng(args.seed, i as u64);
         let trial_seed = args.seed.wrapping_mul(1000).wrapping_add(i as u64);
         let setup = TrialSetup {
             trial_id: cell.new_trial_id(),
             category,
-            object,
-            placement: on_table(random_placement(&config, &mut rng, 0), min_z),
+            object: novel.object.clone(),
+            placement: novel.on_table(random_placement(&config, &mut rng, 0)),
             campaign_id: None,
             noise_seed: trial_seed,
             perception_seed: trial_seed,
-            source,
-            lab: world.draw(args.seed, trial_seed),
+            source: novel.source.clone(),
+            lab: world.lab.trial_draw(args.seed, trial_seed),
         };
         bar.set_message(setup.object.name.clone());
         let result = cell.run_trial(
@@ -622,78 +583,32 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
         );
     }
     let world = World::new(&args.world, category, args.instances, args.seed, &db)?;
-    let objects = if args.world.objects.is_some() {
-        world.objects.len()
-    } else {
-        args.instances
-    };
-    // One campaign per task (each its own Table-2 report and sign tests).
-    let campaign_id = |task: &str| match &args.campaign {
-        Some(c) if tasks.len() == 1 => c.clone(),
-        Some(c) => format!("{c}-{task}"),
-        None => format!(
-            "{}-{task}-seed{}{}",
-            args.kind.category,
-            args.seed,
-            if args.paper { "-paper" } else { "" }
-        ),
+    let spec = CampaignSpec {
+        category: args.kind.category.clone(),
+        tasks,
+        objects: world.objects,
+        placements: args.placements,
+        methods: args.methods.clone(),
+        campaign: args.campaign.clone(),
+        seed: args.seed,
+        paper: args.paper,
+        lab: world.lab,
     };
     // Resume: trials of these campaigns already graded are not run again.
-    let mut done: HashSet<(String, String, u32, String)> = HashSet::new();
-    if args.log.exists() {
-        let log = TrialLog::open_existing(&args.log)?;
-        for t in log.trials()? {
-            if let (Some(c), Some(_)) = (&t.trial.campaign_id, &t.grading) {
-                done.insert((
-                    c.clone(),
-                    t.trial.object.name.clone(),
-                    t.trial.placement.index,
-                    t.trial.method.clone(),
-                ));
-            }
-        }
-    }
-    let mut plan = Vec::new();
-    for task in &tasks {
-        let id = campaign_id(task);
-        for o in 0..objects {
-            let (object, source, min_z) = world.object(o).clone();
-            let mut rng = placement_rng(args.seed, o as u64);
-            for p in 0..args.placements {
-                let placement = on_table(random_placement(&config, &mut rng, p), min_z);
-                for method in &args.methods {
-                    if !done.contains(&(id.clone(), object.name.clone(), p, method.clone())) {
-                        // Same noise, perception and joint errors for every method
-                        // of a placement.
-                        let seed =
-                            args.seed.wrapping_mul(1_000_003) ^ ((o as u64) << 16 | p as u64);
-                        plan.push(CampaignTrial {
-                            campaign_id: id.clone(),
-                            task: task.clone(),
-                            object: object.clone(),
-                            source: source.clone(),
-                            placement,
-                            method: method.clone(),
-                            seed,
-                            lab: world.draw(args.seed, seed),
-                        });
-                    }
-                }
-            }
-        }
-    }
-    let total = tasks.len() * objects * args.placements as usize * args.methods.len();
+    let graded = if args.log.exists() {
+        graded_trials(&TrialLog::open_existing(&args.log)?.trials()?)
+    } else {
+        HashSet::new()
+    };
+    let plan = spec.plan(&config, &graded);
+    let total = spec.total();
     eprintln!(
         "campaigns {}: {} of {total} trials to run ({} already graded in {}); {}",
-        tasks
-            .iter()
-            .map(|t| campaign_id(t))
-            .collect::<Vec<_>>()
-            .join(", "),
+        spec.campaign_ids().join(", "),
         plan.len(),
         total - plan.len(),
         args.log.display(),
-        world.lab.text()
+        spec.lab.text()
     );
     let domain = private_domain("campaign")?;
     let stage = StageArgs {
@@ -708,9 +623,7 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     options.hold_s = args.hold_s;
     options.observer = args.observer;
     options.log_path = args.log.clone();
-    if args.paper {
-        options.protocol = crate::ipc::Protocol::PaperRobot;
-    }
+    options.protocol = spec.protocol();
     crate::cell::install_stop_handler();
     let lines = {
         let mut cell = Cell::start(options, (*domain).clone()).context("starting the cell")?;
@@ -725,42 +638,7 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     let summary = Summary::of(&lines);
     let log = TrialLog::open_existing(&args.log)?;
     let trials = log.trials()?;
-    // Both observers' verdicts of a campaign's trials, side by side.
-    let agreement = |id: &str| {
-        let mut verdicts = crate::sim::observer::Agreement::default();
-        for t in &trials {
-            if t.trial.campaign_id.as_deref() == Some(id) {
-                if let Some((physics, statics)) = t
-                    .trial
-                    .outcome
-                    .as_ref()
-                    .and_then(crate::cell::log::verdict_grades)
-                {
-                    verdicts.add(physics, statics);
-                }
-            }
-        }
-        verdicts
-    };
-    #[derive(Serialize)]
-    struct TaskReport {
-        task: String,
-        campaign_id: String,
-        report: crate::trial::Report,
-        verdicts: crate::sim::observer::Agreement,
-    }
-    let reports: Vec<TaskReport> = tasks
-        .iter()
-        .map(|task| {
-            let id = campaign_id(task);
-            TaskReport {
-                task: task.clone(),
-                report: crate::trial::Report::from_trials(&trials, Some(&id)),
-                verdicts: agreement(&id),
-                campaign_id: id,
-            }
-        })
-        .collect();
+    let reports = spec.reports(&trials);
     #[derive(Serialize)]
     struct CampaignOutput {
         log: PathBuf,
@@ -774,8 +652,8 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     let out = CampaignOutput {
         log: args.log.clone(),
         observer: args.observer.mode().unwrap_or_default(),
-        lab: world.lab,
-        by_task: TaskRow::of(&lines, &tasks, &args.methods),
+        lab: spec.lab,
+        by_task: TaskRow::of(&lines, &spec.tasks, &spec.methods),
         run: lines,
         summary,
         tasks: reports,
@@ -796,18 +674,6 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
         text
     })?;
     Ok(ExitCode::SUCCESS)
-}
-
-/// One trial a campaign plans to run.
-struct CampaignTrial {
-    campaign_id: String,
-    task: String,
-    object: crate::trial::ObjectRef,
-    source: ObjectSource,
-    placement: crate::trial::Placement,
-    method: String,
-    seed: u64,
-    lab: Option<LabDraw>,
 }
 
 /// Grades of one task and method over the trials run now.
@@ -865,7 +731,7 @@ fn run_campaign_trials(
     cell: &mut Cell,
     args: &CampaignArgs,
     category: Category,
-    plan: &[CampaignTrial],
+    plan: &[PlannedTrial],
 ) -> anyhow::Result<Vec<TrialLine>> {
     let bar = progress(plan.len() as u64, args.json);
     let mut lines = Vec::new();
@@ -874,17 +740,7 @@ fn run_campaign_trials(
             break;
         }
         cell.supervise()?;
-        let setup = TrialSetup {
-            trial_id: cell.new_trial_id(),
-            category,
-            object: t.object.clone(),
-            placement: t.placement,
-            campaign_id: Some(t.campaign_id.clone()),
-            noise_seed: t.seed,
-            perception_seed: t.seed,
-            source: t.source.clone(),
-            lab: t.lab,
-        };
+        let setup = t.setup(cell.new_trial_id(), category);
         bar.set_message(format!(
             "{} #{} {} {}",
             t.object.name, t.placement.index, t.task, t.method

@@ -99,10 +99,7 @@ fn bench_collect(
         rig: &rig,
         table: &config.table,
     };
-    let truth = SimTruth {
-        base_from_camera: prior.base_from_camera,
-        rig,
-    };
+    let truth = SimTruth::exact(prior.base_from_camera, rig);
     let (mut plan_ms, mut capture_ms, mut render_ms) = (Vec::new(), Vec::new(), Vec::new());
     let mut usable_min = usize::MAX;
     let bar = indicatif::ProgressBar::new(repeats as u64);
