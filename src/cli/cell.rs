@@ -10,6 +10,7 @@ use crate::config::CellConfig;
 use crate::ipc::{monotonic_now_ns, Domain, Stage, TrialRequest, TrialResult};
 use crate::mesh::procedural::Category;
 use crate::sim::lab::{LabDraw, LabErrors};
+use crate::stats::finite_median;
 use crate::trial::TrialLog;
 use anyhow::Context;
 use clap::Args;
@@ -380,20 +381,6 @@ pub struct Summary {
     pub median_plan_ms: Option<f64>,
 }
 
-fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
-    let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) / 2.0
-    })
-}
-
 impl Summary {
     fn of(lines: &[TrialLine]) -> Summary {
         let count = |g: &str| lines.iter().filter(|l| l.grade == g).count();
@@ -403,11 +390,11 @@ impl Summary {
             partial: count("partial"),
             failure: count("failure"),
             lost: count("lost"),
-            median_snapshot_to_grasp_command_ms: median(
+            median_snapshot_to_grasp_command_ms: finite_median(
                 lines.iter().map(|l| l.snapshot_to_grasp_command_ms),
             ),
-            median_perceive_ms: median(lines.iter().map(|l| l.perceive_ms)),
-            median_plan_ms: median(lines.iter().map(|l| l.plan_ms)),
+            median_perceive_ms: finite_median(lines.iter().map(|l| l.perceive_ms)),
+            median_plan_ms: finite_median(lines.iter().map(|l| l.plan_ms)),
         }
     }
 

@@ -1,6 +1,5 @@
 //! `cell bench calib`: hand–eye solvers on synthetic samples and simulated collections.
 
-use super::median;
 use crate::calib::collect::{
     plan_poses, run_collection, CameraPrior, CollectOptions, PlannerCell, TargetRig,
 };
@@ -13,6 +12,7 @@ use crate::calib::{
 use crate::config::CellConfig;
 use crate::robot::Robot;
 use crate::sim::camera::Intrinsics;
+use crate::stats::median;
 use anyhow::Context;
 use clap::Args;
 use nalgebra::Point3;

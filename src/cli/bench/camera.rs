@@ -1,6 +1,5 @@
 //! `cell bench camera`: the Kinect backend's conversion cost and the fakenect frame rate.
 
-use super::{median, percentile};
 use crate::cli::camera::sim_frames;
 use crate::config::CellConfig;
 use crate::geometry::Pose;
@@ -8,6 +7,7 @@ use crate::hw::kinect::convert::{depth_to_cloud, DepthEncoding};
 use crate::hw::kinect::fakenect::RawFrame;
 use crate::mesh::procedural::{generate, Category};
 use crate::sim::scene::{Scene, TableBox};
+use crate::stats::{median, percentile};
 use anyhow::Context;
 use clap::Args;
 use serde::Serialize;
