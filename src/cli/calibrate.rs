@@ -9,6 +9,7 @@ use crate::calib::{
     solve, Conditioning, HandEyeResult, Method, ResidualStats, Sample, SampleFile, SampleResidual,
     Solution, SolveOptions, Weights,
 };
+use crate::clock::{format_utc, unix_ms_now, UtcPrecision};
 use crate::config::CellConfig;
 use crate::geometry::{matrix_rows, parse_numbers, pose_from_params, PoseJson};
 use crate::robot::Robot;
@@ -22,7 +23,7 @@ use std::path::Path;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
-use std::time::{Instant, SystemTime, UNIX_EPOCH};
+use std::time::Instant;
 
 /// The calibration subcommands.
 #[derive(Debug, Subcommand)]
@@ -576,45 +577,5 @@ fn human_report(r: &SolveReport) -> String {
 
 /// The current UTC time as RFC 3339 (`2025-01-31T10:00:00Z`).
 fn utc_now_rfc3339() -> String {
-    let secs = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0);
-    rfc3339_utc(secs)
-}
-
-/// Seconds since the Unix epoch as RFC 3339 UTC (proleptic Gregorian calendar).
-fn rfc3339_utc(unix_s: u64) -> String {
-    let days = (unix_s / 86_400) as i64;
-    let rem = unix_s % 86_400;
-    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1_460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!(
-        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60
-    )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn rfc3339_matches_known_dates() {
-        assert_eq!(rfc3339_utc(0), "1970-01-01T00:00:00Z");
-        // 2000-02-29 (leap day) 12:34:56 UTC.
-        assert_eq!(rfc3339_utc(951_827_696), "2000-02-29T12:34:56Z");
-        // 2024-12-31T23:59:59Z.
-        assert_eq!(rfc3339_utc(1_735_689_599), "2024-12-31T23:59:59Z");
-    }
+    format_utc(unix_ms_now(), UtcPrecision::Seconds)
 }
