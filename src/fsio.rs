@@ -1,4 +1,7 @@
-//! File output that is never half-written.
+//! File output that is never half-written: [`write_atomically`], the crate's one way
+//! to write a file that readers may see (callers map its `io::Error` to their own
+//! error with the path), and [`create_parent_dir`] for files in new directories.
+//! Unit tests get a temporary directory that removes itself ([`TempDir`]).
 
 use std::io::Write;
 use std::path::Path;
@@ -30,4 +33,101 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
         let _ = std::fs::remove_file(&tmp);
     }
     result
+}
+
+/// Creates the directory `path` goes into (and its parents), if `path` names one.
+pub fn create_parent_dir(path: &Path) -> std::io::Result<()> {
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => std::fs::create_dir_all(dir),
+        _ => Ok(()),
+    }
+}
+
+/// A fresh directory for one unit test, removed with everything in it when dropped,
+/// also when the test panics (`graspcell-<tag>-<pid>-<n>` under the system's
+/// temporary directory).
+#[cfg(test)]
+#[derive(Debug)]
+pub struct TempDir(std::path::PathBuf);
+
+#[cfg(test)]
+impl TempDir {
+    /// Creates an empty directory named after `tag`.
+    pub fn new(tag: &str) -> TempDir {
+        static COUNTER: AtomicU64 = AtomicU64::new(0);
+        let dir = std::env::temp_dir().join(format!(
+            "graspcell-{tag}-{}-{}",
+            std::process::id(),
+            COUNTER.fetch_add(1, Ordering::Relaxed)
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("cannot create a temporary directory");
+        TempDir(dir)
+    }
+
+    /// The directory.
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+#[cfg(test)]
+impl std::ops::Deref for TempDir {
+    type Target = Path;
+
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+#[cfg(test)]
+impl AsRef<Path> for TempDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+#[cfg(test)]
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn atomic_write_replaces_and_leaves_no_temp() {
+        let dir = TempDir::new("fsio-atomic");
+        let path = dir.join("sub").join("f.txt");
+        create_parent_dir(&path).unwrap();
+        write_atomically(&path, b"one").unwrap();
+        write_atomically(&path, b"two").unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), "two");
+        let names: Vec<_> = std::fs::read_dir(path.parent().unwrap()).unwrap().collect();
+        assert_eq!(names.len(), 1);
+        assert!(write_atomically(&dir.join("missing/f.txt"), b"x").is_err());
+        create_parent_dir(Path::new("f.txt")).unwrap();
+    }
+
+    #[test]
+    fn a_temp_dir_is_removed_on_drop_and_on_panic() {
+        let dir = TempDir::new("fsio-drop");
+        std::fs::write(dir.join("f"), b"x").unwrap();
+        let path = dir.path().to_path_buf();
+        drop(dir);
+        assert!(!path.exists());
+        let path = std::panic::catch_unwind(|| {
+            let dir = TempDir::new("fsio-panic");
+            std::fs::write(dir.join("f"), b"x").unwrap();
+            let path = dir.path().to_path_buf();
+            std::panic::panic_any(path);
+        })
+        .unwrap_err()
+        .downcast::<std::path::PathBuf>()
+        .unwrap();
+        assert!(!path.exists(), "{}", path.display());
+    }
 }
