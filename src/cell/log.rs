@@ -155,37 +155,6 @@ fn camera_note(fault: CameraFault) -> String {
     format!("camera: {what}")
 }
 
-/// The ipc cause of a trial log cause.
-fn ipc_cause(cause: Option<FailureCause>) -> IpcCause {
-    match cause {
-        None => IpcCause::None,
-        Some(FailureCause::Reachability) => IpcCause::Reachability,
-        Some(FailureCause::Registration) => IpcCause::RegistrationFailure,
-        Some(FailureCause::ShapeDissimilarity) => IpcCause::ShapeDissimilarity,
-        Some(FailureCause::Execution) => IpcCause::Execution,
-        Some(FailureCause::Other) => IpcCause::Other,
-    }
-}
-
-fn ipc_grade(grade: Grade) -> IpcGrade {
-    match grade {
-        Grade::Success => IpcGrade::Success,
-        Grade::Partial => IpcGrade::Partial,
-        Grade::Failure => IpcGrade::Failure,
-    }
-}
-
-/// The trial log's cause of a plan's failure.
-pub fn plan_cause(cause: IpcCause) -> FailureCause {
-    match cause {
-        IpcCause::Reachability => FailureCause::Reachability,
-        IpcCause::RegistrationFailure => FailureCause::Registration,
-        IpcCause::ShapeDissimilarity => FailureCause::ShapeDissimilarity,
-        IpcCause::Execution | IpcCause::HardwareFault => FailureCause::Execution,
-        _ => FailureCause::Other,
-    }
-}
-
 /// The fits as JSON for the trial log.
 fn fits_json(fits: Option<&Fits>) -> serde_json::Value {
     let Some(fits) = fits else {
@@ -252,7 +221,7 @@ impl Logger {
                 _ => "the planner failed",
             };
             return Ok(Attempt::NotPlanned {
-                cause: plan_cause(failure),
+                cause: failure.into(),
                 detail: detail.to_string(),
             });
         }
@@ -501,12 +470,12 @@ impl Logger {
             Ending::StageDied(_) => IpcCause::StageDied,
             Ending::TimedOut(_) => IpcCause::Timeout,
             Ending::Camera(_) => IpcCause::Camera,
-            Ending::Reported => ipc_cause(grading.cause),
+            Ending::Reported => grading.cause.into(),
         };
         Ok(TrialResult::new(
             trial_id,
             monotonic_now_ns(),
-            ipc_grade(grading.grade),
+            grading.grade.into(),
             cause,
             timings,
         ))
@@ -736,13 +705,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn causes_map_both_ways() {
-        for cause in FailureCause::ALL {
-            let ipc = ipc_cause(Some(cause));
-            assert_eq!(plan_cause(ipc), cause, "{cause:?}");
-        }
-        assert_eq!(ipc_cause(None), IpcCause::None);
-        assert_eq!(ipc_grade(Grade::Partial), IpcGrade::Partial);
+    fn no_fits_have_no_best_fit() {
         assert!(best_fit(None).is_none());
     }
 
