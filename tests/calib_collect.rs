@@ -2,6 +2,7 @@
 //! camera's true mount; poses without a visible sphere are skipped; too few usable
 //! poses is an error.
 
+use crate::common::TempDir;
 use clap::Parser;
 use graspcell::calib::collect::{
     check_configuration, plan_poses, run_collection, ArmMover, CameraPrior, CollectError,
@@ -383,22 +384,12 @@ fn run_cell(args: &[&str]) -> anyhow::Result<std::process::ExitCode> {
     graspcell::cli::run(graspcell::cli::Cli::try_parse_from(argv)?)
 }
 
-fn temp_dir(tag: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "graspcell-calib-collect-{tag}-{}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 /// `cell calibrate collect` then `cell calibrate solve`, then perception's loader:
 /// the mount it returns is the simulated truth (given on the command line as an
 /// error of the nominal mount) within 2 mm and 0.2°.
 #[test]
 fn cli_collect_solve_and_load_the_mount() {
-    let dir = temp_dir("cli");
+    let dir = TempDir::new("calib-collect", "cli");
     let samples = dir.join("samples.json");
     let result = dir.join("hand_eye.toml");
     let error = [0.012, 0.01, -0.006, -0.015, 0.02, 0.01];
@@ -448,13 +439,12 @@ fn cli_collect_solve_and_load_the_mount() {
     );
     let (dp, dr) = pose_error(&mount.base_from_camera, &truth.base_from_camera);
     assert!(dp < 2e-3 && dr.to_degrees() < 0.2, "{dp} m {dr} rad");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Backends other than the simulation are refused with what to change; nothing is written.
 #[test]
 fn cli_collect_refuses_hardware_backends() {
-    let dir = temp_dir("hw");
+    let dir = TempDir::new("calib-collect", "hw");
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let text = std::fs::read_to_string(root.join("robot/cell.toml"))
         .unwrap()
@@ -483,5 +473,4 @@ fn cli_collect_refuses_hardware_backends() {
         "{err}"
     );
     assert!(!out.exists());
-    std::fs::remove_dir_all(&dir).unwrap();
 }

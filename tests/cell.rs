@@ -2,6 +2,7 @@
 //! trial end to end, a stage killed mid-trial, the log killed during a campaign, and
 //! the systemd units against the binaries.
 
+use crate::common::TempDir;
 use graspcell::category::CategoryDb;
 use graspcell::cell::harness::{
     novel_object, placement_rng, random_placement, Cell, HarnessOptions, HOME_JOINTS_RAD,
@@ -27,19 +28,19 @@ struct Fixture {
     config: CellConfig,
     db: CategoryDb,
     log_path: PathBuf,
-    run_dir: PathBuf,
+    /// Removed when the fixture is dropped, after the cell.
+    _run_dir: TempDir,
     n: u64,
 }
 
 fn start(tag: &str, domain: &Domain) -> Fixture {
-    let run_dir = std::env::temp_dir().join(format!("gc-cell-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&run_dir);
+    let run_dir = TempDir::new("cell", tag);
     let stage = StageArgs {
         config: PathBuf::from("robot/cell.toml"),
         instance: domain.services().instance().to_string(),
         ipc_root: Some(domain.root()),
         ipc_prefix: domain.prefix(),
-        run_dir: run_dir.clone(),
+        run_dir: run_dir.to_path_buf(),
     };
     let log_path = run_dir.join("trials.sqlite");
     let options = HarnessOptions {
@@ -59,7 +60,7 @@ fn start(tag: &str, domain: &Domain) -> Fixture {
         config: CellConfig::load(Path::new("robot/cell.toml")).unwrap(),
         db: CategoryDb::load(Path::new("db/mug")).unwrap(),
         log_path,
-        run_dir,
+        _run_dir: run_dir,
         n: 0,
     }
 }
@@ -106,7 +107,6 @@ impl Fixture {
             Vec::<PathBuf>::new(),
             "no shared memory left behind"
         );
-        let _ = std::fs::remove_dir_all(&self.run_dir);
     }
 }
 
@@ -266,8 +266,7 @@ fn systemd_analyze_verify_passes_on_every_unit_with_the_binaries_installed() {
         analyze.exists(),
         "systemd-analyze is missing: install Debian's systemd package (.ci/run does)"
     );
-    let root = std::env::temp_dir().join(format!("gc-systemd-root-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
+    let root = TempDir::new("cell", "systemd-root");
     let units = root.join("etc/systemd/system");
     let bin = root.join("usr/local/bin");
     let system = root.join("usr/lib/systemd/system");
@@ -302,7 +301,6 @@ fn systemd_analyze_verify_passes_on_every_unit_with_the_binaries_installed() {
         .args(&names)
         .output()
         .unwrap();
-    let _ = std::fs::remove_dir_all(&root);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
         out.status.success() && stderr.trim().is_empty(),
