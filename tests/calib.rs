@@ -417,7 +417,7 @@ fn cli_solve_writes_a_result_perception_can_load() {
     let dir = TempDir::new("calib", "cli");
     let scene = SyntheticScene::nominal();
     let samples = write_samples(
-        &*dir,
+        &dir,
         as_samples(&pose_samples(&scene, 20, &noise(), 11), Sample::Pose),
     );
     let out = dir.join("calib").join("hand_eye.toml");
@@ -453,7 +453,7 @@ fn cli_solve_writes_a_result_perception_can_load() {
     }
     // Point samples with a known target position, no refinement, human output.
     let points = write_samples(
-        &*dir,
+        &dir,
         as_samples(&point_samples(&scene, 10, &noise(), 3), Sample::Point),
     );
     let y = scene.flange_from_target.translation.vector;
@@ -509,7 +509,7 @@ fn cli_rejects_bad_input_and_keeps_the_old_result() {
         ];
         format!("{:#}", cell(&args).unwrap_err())
     };
-    let degenerate = write_samples(&*dir, turning_about_z(&[0.0, 25.0, -30.0, 50.0]));
+    let degenerate = write_samples(&dir, turning_about_z(&[0.0, 25.0, -30.0, 50.0]));
     let err = run(&degenerate, "all");
     assert!(
         err.contains("samples.json") && err.contains("add poses rotating about a different axis"),
@@ -517,7 +517,7 @@ fn cli_rejects_bad_input_and_keeps_the_old_result() {
     );
     let scene = SyntheticScene::nominal();
     let points = write_samples(
-        &*dir,
+        &dir,
         as_samples(&point_samples(&scene, 6, &noise(), 1), Sample::Point),
     );
     let err = run(&points, "daniilidis");

@@ -95,7 +95,7 @@ fn paired_campaign(log: &mut TrialLog, wins: u32, losses: u32, ties: u32) {
 fn sign_test_p_values_equal_exact_integer_computation() {
     let dir = TempDir::new("trial", "signtest");
     for (wins, losses, ties) in [(20_u32, 2_u32, 6_u32), (70, 40, 3), (9, 11, 0), (0, 0, 4)] {
-        let path = dir.join(&format!("{wins}-{losses}-{ties}.sqlite"));
+        let path = dir.join(format!("{wins}-{losses}-{ties}.sqlite"));
         let mut log = TrialLog::open(&path).unwrap();
         paired_campaign(&mut log, wins, losses, ties);
         let report = Report::from_trials(&log.trials().unwrap(), Some("test-campaign"));
