@@ -534,7 +534,7 @@ mod tests {
 
     #[test]
     fn configuration_is_found_in_the_order_a_unix_tool_uses() {
-        let dir = crate::fsio::TempDir::new("locate");
+        let dir = crate::fsio::TempDir::new("locate").unwrap();
         let local = dir.join("local.toml");
         let system = dir.join("system.toml");
         let env = dir.join("env.toml");
@@ -576,7 +576,7 @@ mod tests {
     #[test]
     fn unknown_field_and_bad_value_are_named() {
         let text = std::fs::read_to_string(shipped()).unwrap();
-        let dir = crate::fsio::TempDir::new("config");
+        let dir = crate::fsio::TempDir::new("config").unwrap();
         let typo = dir.join("typo.toml");
         std::fs::write(&typo, text.replace("height_m =", "heigth_m =")).unwrap();
         let err = CellConfig::load(&typo).unwrap_err().to_string();
@@ -594,7 +594,7 @@ mod tests {
     fn nan_and_infinity_are_refused_in_every_number() {
         // Issue 21 item 4: TOML spells nan and inf; none may reach the cell.
         let text = std::fs::read_to_string(shipped()).unwrap();
-        let dir = crate::fsio::TempDir::new("nan");
+        let dir = crate::fsio::TempDir::new("nan").unwrap();
         let cases = [
             ("height_m = 0.0", "height_m = nan", "table.height_m", "NaN"),
             (
@@ -633,7 +633,7 @@ mod tests {
     fn the_robot_controller_address_is_required_and_checked() {
         let text = std::fs::read_to_string(shipped()).unwrap();
         assert!(CellConfig::load(&shipped()).unwrap().fri.robot_addr == "127.0.0.1");
-        let dir = crate::fsio::TempDir::new("robot-addr");
+        let dir = crate::fsio::TempDir::new("robot-addr").unwrap();
         let load = |name: &str, text: String| {
             let path = dir.join(name);
             std::fs::write(&path, text).unwrap();

@@ -1,10 +1,10 @@
 //! File output that is never half-written: [`write_atomically`], the crate's one way
 //! to write a file that readers may see (callers map its `io::Error` to their own
-//! error with the path), and [`create_parent_dir`] for files in new directories.
-//! Unit tests get a temporary directory that removes itself ([`TempDir`]).
+//! error with the path), and [`create_parent_dir`] for files in new directories;
+//! [`TempDir`], a temporary directory that removes itself.
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Writes `bytes` to `path` so that readers see the old file or the whole new one,
@@ -43,17 +43,17 @@ pub fn create_parent_dir(path: &Path) -> std::io::Result<()> {
     }
 }
 
-/// A fresh directory for one unit test, removed with everything in it when dropped,
-/// also when the test panics (`graspcell-<tag>-<pid>-<n>` under the system's
-/// temporary directory).
-#[cfg(test)]
+/// A fresh directory under the system's temporary directory
+/// (`graspcell-<tag>-<pid>-<n>`), removed with everything in it when dropped, also
+/// when the thread unwinds from a panic: scratch space for a command (`cell demo`
+/// without `--run-dir`, a benchmark) and the one temporary directory of the unit and
+/// integration tests. It derefs to its [`Path`].
 #[derive(Debug)]
-pub struct TempDir(std::path::PathBuf);
+pub struct TempDir(PathBuf);
 
-#[cfg(test)]
 impl TempDir {
     /// Creates an empty directory named after `tag`.
-    pub fn new(tag: &str) -> TempDir {
+    pub fn new(tag: &str) -> std::io::Result<TempDir> {
         static COUNTER: AtomicU64 = AtomicU64::new(0);
         let dir = std::env::temp_dir().join(format!(
             "graspcell-{tag}-{}-{}",
@@ -61,17 +61,11 @@ impl TempDir {
             COUNTER.fetch_add(1, Ordering::Relaxed)
         ));
         let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("cannot create a temporary directory");
-        TempDir(dir)
-    }
-
-    /// The directory.
-    pub fn path(&self) -> &Path {
-        &self.0
+        std::fs::create_dir_all(&dir)?;
+        Ok(TempDir(dir))
     }
 }
 
-#[cfg(test)]
 impl std::ops::Deref for TempDir {
     type Target = Path;
 
@@ -80,14 +74,18 @@ impl std::ops::Deref for TempDir {
     }
 }
 
-#[cfg(test)]
 impl AsRef<Path> for TempDir {
     fn as_ref(&self) -> &Path {
         &self.0
     }
 }
 
-#[cfg(test)]
+impl AsRef<std::ffi::OsStr> for TempDir {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.0.as_os_str()
+    }
+}
+
 impl Drop for TempDir {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
@@ -100,7 +98,7 @@ mod tests {
 
     #[test]
     fn atomic_write_replaces_and_leaves_no_temp() {
-        let dir = TempDir::new("fsio-atomic");
+        let dir = TempDir::new("fsio-atomic").unwrap();
         let path = dir.join("sub").join("f.txt");
         create_parent_dir(&path).unwrap();
         write_atomically(&path, b"one").unwrap();
@@ -114,15 +112,15 @@ mod tests {
 
     #[test]
     fn a_temp_dir_is_removed_on_drop_and_on_panic() {
-        let dir = TempDir::new("fsio-drop");
+        let dir = TempDir::new("fsio-drop").unwrap();
         std::fs::write(dir.join("f"), b"x").unwrap();
-        let path = dir.path().to_path_buf();
+        let path = dir.to_path_buf();
         drop(dir);
         assert!(!path.exists());
         let path = std::panic::catch_unwind(|| {
-            let dir = TempDir::new("fsio-panic");
+            let dir = TempDir::new("fsio-panic").unwrap();
             std::fs::write(dir.join("f"), b"x").unwrap();
-            let path = dir.path().to_path_buf();
+            let path = dir.to_path_buf();
             std::panic::panic_any(path);
         })
         .unwrap_err()

@@ -1,7 +1,6 @@
 //! Hand–eye calibration: accuracy on synthetic samples, the refinement's guarantee,
 //! degenerate input, file round trips, the CLI, and the files shipped under `calib/`.
 
-use crate::common::TempDir;
 use clap::Parser;
 use graspcell::calib::synthetic::{point_samples, pose_samples, Noise, SyntheticScene};
 use graspcell::calib::{
@@ -9,6 +8,7 @@ use graspcell::calib::{
     CalibError, HandEye, HandEyeResult, Method, PointSample, PoseSample, Sample, SampleFile,
     SolveOptions, Weights,
 };
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{pose_error, pose_from_params, Pose};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use std::path::{Path, PathBuf};
@@ -363,7 +363,7 @@ fn wrong_frames_are_caught_with_what_to_check() {
 
 #[test]
 fn sample_file_round_trip_through_disk() {
-    let dir = TempDir::new("calib", "samples");
+    let dir = TempDir::new("calib-samples").unwrap();
     let scene = SyntheticScene::nominal();
     let mut samples = as_samples(&pose_samples(&scene, 5, &noise(), 1), Sample::Pose);
     samples.extend(as_samples(
@@ -414,7 +414,7 @@ fn write_samples(dir: &Path, samples: Vec<Sample>) -> PathBuf {
 
 #[test]
 fn cli_solve_writes_a_result_perception_can_load() {
-    let dir = TempDir::new("calib", "cli");
+    let dir = TempDir::new("calib-cli").unwrap();
     let scene = SyntheticScene::nominal();
     let samples = write_samples(
         &dir,
@@ -493,7 +493,7 @@ fn cli_solve_writes_a_result_perception_can_load() {
 
 #[test]
 fn cli_rejects_bad_input_and_keeps_the_old_result() {
-    let dir = TempDir::new("calib", "cli-bad");
+    let dir = TempDir::new("calib-cli-bad").unwrap();
     let out = dir.join("hand_eye.toml");
     std::fs::write(&out, "old").unwrap();
     let run = |samples: &Path, method: &str| {

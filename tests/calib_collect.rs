@@ -2,7 +2,6 @@
 //! camera's true mount; poses without a visible sphere are skipped; too few usable
 //! poses is an error.
 
-use crate::common::TempDir;
 use clap::Parser;
 use graspcell::calib::collect::{
     check_configuration, plan_poses, run_collection, ArmMover, CameraPrior, CollectError,
@@ -14,6 +13,7 @@ use graspcell::calib::{
 };
 use graspcell::cloud::PointCloud;
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{pose_error, pose_from_params, Pose};
 use graspcell::robot::{HandPose, Robot};
 use graspcell::sim::camera::{Intrinsics, Return, Surface};
@@ -389,7 +389,7 @@ fn run_cell(args: &[&str]) -> anyhow::Result<std::process::ExitCode> {
 /// error of the nominal mount) within 2 mm and 0.2°.
 #[test]
 fn cli_collect_solve_and_load_the_mount() {
-    let dir = TempDir::new("calib-collect", "cli");
+    let dir = TempDir::new("calib-collect-cli").unwrap();
     let samples = dir.join("samples.json");
     let result = dir.join("hand_eye.toml");
     let error = [0.012, 0.01, -0.006, -0.015, 0.02, 0.01];
@@ -444,7 +444,7 @@ fn cli_collect_solve_and_load_the_mount() {
 /// Backends other than the simulation are refused with what to change; nothing is written.
 #[test]
 fn cli_collect_refuses_hardware_backends() {
-    let dir = TempDir::new("calib-collect", "hw");
+    let dir = TempDir::new("calib-collect-hw").unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let text = std::fs::read_to_string(root.join("robot/cell.toml"))
         .unwrap()

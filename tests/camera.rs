@@ -2,10 +2,10 @@
 //! surfaces within the noise model; dropouts follow the geometry; frames are
 //! seeded; scene files and `cell camera render`.
 
-use crate::common::TempDir;
 use clap::Parser;
 use graspcell::cli::{run, Cli};
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{look_at_optical, pose_from_params, Pose};
 use graspcell::mesh::obj::write_obj;
 use graspcell::mesh::procedural::{generate, Category};
@@ -461,7 +461,7 @@ fn write_scene(dir: &Path, text: &str) -> PathBuf {
 #[test]
 fn scene_files_load_meshes_and_name_what_is_wrong() {
     let config = config();
-    let dir = TempDir::new("camera", "scene");
+    let dir = TempDir::new("camera-scene").unwrap();
     // A millimetre OBJ file, scaled back to metres by the scene.
     let (mug, _) = generate(Category::Mug, 8);
     let mm = TriMesh {
@@ -564,7 +564,7 @@ pose = { xyz = [0.7, -0.1, 0.0] }
 
 #[test]
 fn cli_renders_a_cloud_and_a_readable_depth_image() {
-    let dir = TempDir::new("camera", "cli");
+    let dir = TempDir::new("camera-cli").unwrap();
     let scene = write_scene(
         &dir,
         "[[objects]]\ncategory = \"mug\"\nseed = 1\npose = { xyz = [0.65, 0.0, 0.0], rpy = [0.0, 0.0, 1.2] }\n",

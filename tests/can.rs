@@ -2,8 +2,8 @@
 //! the puck emulator (in-process, cross-process, as a child process), and
 //! frame-exact checks of the protocol.
 
-use crate::common::TempDir;
 use graspcell::clock::{Clock, ManualClock, SystemClock};
+use graspcell::fsio::TempDir;
 use graspcell::hw::can::CanFrame;
 use graspcell::hw::can::{
     open_bus, BusState, CanBus, CanError, CandumpBus, Corruption, FaultConfig, Hub, SocketCanBus,
@@ -187,7 +187,7 @@ fn conformance_in_process() {
 
 #[test]
 fn conformance_in_process_with_candump_logging() {
-    let dir = TempDir::new("can", "candump-conf");
+    let dir = TempDir::new("can-candump-conf").unwrap();
     let bus = VirtualBus::new(&unique("inproc-log"));
     let mut n = 0;
     conformance("in-process+candump", || {
@@ -800,7 +800,7 @@ impl Drop for ChildGuard {
 fn hand_emulator_as_child_process_grasps() {
     let name = unique("child");
     let interface = format!("virtual:{name}");
-    let dir = TempDir::new("can", "child");
+    let dir = TempDir::new("can-child").unwrap();
     let candump = dir.join("hand.log");
     // This process hosts the hub; the emulator connects as another process.
     let bus = open_bus(&interface).unwrap();

@@ -2,11 +2,11 @@
 //! closure on the stored meshes (re-simulated here); training writes a database
 //! that loads, and rejects bad teach files by the grasp's name, writing nothing.
 
-use crate::common::TempDir;
 use crate::grasp::{cylinder, shipped_hand, side_pose};
 use graspcell::category::teach::{TeachFile, TeachGrasp, TeachModel};
 use graspcell::category::train::{train, TrainOptions};
 use graspcell::category::{tasks_of, CategoryDb, CategoryError, DATABASE_FILE};
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{Pose, PoseJson};
 use graspcell::mesh::obj::write_obj;
 use graspcell::mesh::procedural::Category;
@@ -115,7 +115,7 @@ fn every_shipped_database_loads_and_its_grasps_are_force_closure() {
 
 /// A models directory with one cylinder and a teach file naming `grasps`.
 fn fixture(name: &str, grasps: Vec<TeachGrasp>) -> (TempDir, TeachFile) {
-    let dir = TempDir::new("category", name);
+    let dir = TempDir::new(&format!("category-{name}")).unwrap();
     write_obj(&dir.join("can.obj"), &cylinder(0.035, 0.25, 72)).unwrap();
     let teach = TeachFile {
         category: Some(Category::Bottle),
@@ -286,7 +286,7 @@ fn fixture_like(teach: &TeachFile, grasps: Vec<TeachGrasp>) -> TeachFile {
 
 #[test]
 fn a_damaged_database_is_an_error_naming_the_problem() {
-    let dir = TempDir::new("category", "damaged");
+    let dir = TempDir::new("category-damaged").unwrap();
     let src = shipped("hammer");
     std::fs::create_dir_all(dir.join("models")).unwrap();
     for entry in std::fs::read_dir(src.join("models")).unwrap() {

@@ -2,7 +2,6 @@
 //! trial end to end, a stage killed mid-trial, the log killed during a campaign, and
 //! the systemd units against the binaries.
 
-use crate::common::TempDir;
 use graspcell::category::CategoryDb;
 use graspcell::cell::harness::{
     novel_object, placement_rng, random_placement, Cell, HarnessOptions, HOME_JOINTS_RAD,
@@ -10,6 +9,7 @@ use graspcell::cell::harness::{
 use graspcell::cell::setup::TrialSetup;
 use graspcell::cell::StageArgs;
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::ipc::{Domain, FailureCause, Grade, JointStates, Stage, TrialResult};
 use graspcell::mesh::procedural::Category;
 use graspcell::trial::TrialLog;
@@ -34,7 +34,7 @@ struct Fixture {
 }
 
 fn start(tag: &str, domain: &Domain) -> Fixture {
-    let run_dir = TempDir::new("cell", tag);
+    let run_dir = TempDir::new(&format!("cell-{tag}")).unwrap();
     let stage = StageArgs {
         config: PathBuf::from("robot/cell.toml"),
         instance: domain.services().instance().to_string(),
@@ -266,7 +266,7 @@ fn systemd_analyze_verify_passes_on_every_unit_with_the_binaries_installed() {
         analyze.exists(),
         "systemd-analyze is missing: install Debian's systemd package (.ci/run does)"
     );
-    let root = TempDir::new("cell", "systemd-root");
+    let root = TempDir::new("cell-systemd-root").unwrap();
     let units = root.join("etc/systemd/system");
     let bin = root.join("usr/local/bin");
     let system = root.join("usr/lib/systemd/system");

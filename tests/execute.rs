@@ -7,13 +7,13 @@
 //! quality levels (a loaded machine must not drop it to monitor by accident); every
 //! wait has a timeout and no test asserts how long anything took.
 
-use crate::common::TempDir;
 use graspcell::clock::{Clock, SystemClock};
 use graspcell::config::{CellConfig, DEFAULT_CONFIG_PATH};
 use graspcell::execute::{
     ExecuteError, ExecutionReport, ExecutionRequest, Executor, ExecutorConfig, Outcome, Phase,
     SafetyError, SafetyLimits,
 };
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{pose_from_params, Pose, PoseJson};
 use graspcell::hw::can::{CanBus, FaultConfig, Hub, UnixBus};
 use graspcell::hw::fri::{DriverConfig, FriDriver, FriState, Quality};
@@ -118,7 +118,7 @@ impl Rig {
         let cell = CellConfig::load(&config_path()).unwrap();
         let robot = Arc::new(Robot::load(&cell).unwrap());
         let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
-        let dir = TempDir::new("execute", "execute");
+        let dir = TempDir::new("execute-execute").unwrap();
         let candump = dir.join("hand.log");
 
         let driver = FriDriver::start(
@@ -554,7 +554,7 @@ fn cell_execute(config: &Path, plan: &Path) -> (bool, serde_json::Value) {
 /// p.json` runs, unchanged (one schema), on the shipped mug database.
 #[test]
 fn cell_plan_out_then_cell_execute_runs_the_planned_grasp() {
-    let dir = TempDir::new("execute", "plan-then-execute");
+    let dir = TempDir::new("execute-plan-then-execute").unwrap();
     let cell = CellConfig::load(&config_path()).unwrap();
     let config = private_config(&dir, &cell);
     let db = Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug");
@@ -612,7 +612,7 @@ fn cell_plan_out_then_cell_execute_runs_the_planned_grasp() {
 
 #[test]
 fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
-    let dir = TempDir::new("execute", "cli");
+    let dir = TempDir::new("execute-cli").unwrap();
     let cell = CellConfig::load(&config_path()).unwrap();
     let robot = Robot::load(&cell).unwrap();
     let config = private_config(&dir, &cell);

@@ -3,8 +3,8 @@
 //! contacts, a hand in the object is reported; the contacts lie on the surface with
 //! inward normals (checked against the cylinder's own geometry here).
 
-use crate::common::TempDir;
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{params_from_pose, Pose};
 use graspcell::mesh::obj::write_obj;
 use graspcell::mesh::TriMesh;
@@ -104,7 +104,7 @@ fn library_side_grasp_of_a_35_mm_cylinder_is_force_closure_with_three_fingers() 
 
 #[test]
 fn cli_closes_the_hand_around_a_cylinder_file() {
-    let dir = TempDir::new("grasp", "cli");
+    let dir = TempDir::new("grasp-cli").unwrap();
     let radius = 0.035;
     let mesh_path = dir.join("cylinder.obj");
     write_obj(&mesh_path, &cylinder(radius, 0.25, 72)).unwrap();

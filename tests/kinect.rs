@@ -5,12 +5,13 @@
 //! device; a recording cut short mid-run. Needs `--features kinect` and Debian's
 //! libfreenect-dev (`.ci/setup` installs it).
 
-use crate::common::{cell, root, TempDir};
+use crate::common::{cell, root};
 use graspcell::calib::{HandEyeResult, ResidualStats};
 use graspcell::category::CategoryDb;
 use graspcell::cell::StageArgs;
 use graspcell::cloud::segment::SegmentParams;
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{pose_error, pose_from_params, Pose, PoseJson};
 use graspcell::hw::kinect::device::{Kinect, KinectOptions};
 use graspcell::hw::kinect::KinectError;
@@ -228,7 +229,7 @@ impl Operator {
 #[test]
 fn simulated_mug_recorded_for_fakenect_registers_through_the_kinect_backend_within_5_mm_and_5_deg()
 {
-    let dir = TempDir::new("kinect", "e2e");
+    let dir = TempDir::new("kinect-e2e").unwrap();
     let config = config();
     // Handle visible: turned 60 deg towards the camera (as the perception tests).
     let truth = pose_from_params(&[0.62, 0.04, config.table.height_m, 0.0, 0.0, 1.05]);
@@ -313,7 +314,7 @@ fn simulated_mug_recorded_for_fakenect_registers_through_the_kinect_backend_with
 
 #[test]
 fn a_calibration_tilted_by_5_deg_fails_the_gravity_check_with_a_warning() {
-    let dir = TempDir::new("kinect", "gravity");
+    let dir = TempDir::new("kinect-gravity").unwrap();
     let config = config();
     let truth = pose_from_params(&[0.62, 0.04, config.table.height_m, 0.0, 0.0, 1.05]);
     let recording = record_mug(&dir, &truth, 2);
@@ -389,7 +390,7 @@ fn without_a_kinect_the_backend_names_the_usb_and_udev_checks() {
     );
 
     // The stage says so at start, stays up, and fails each trial with the fault.
-    let dir = TempDir::new("kinect", "nodevice");
+    let dir = TempDir::new("kinect-nodevice").unwrap();
     let domain = Domain::temporary("kinect-nodevice").unwrap();
     let camera = Process::start(
         "camera",
@@ -415,7 +416,7 @@ fn without_a_kinect_the_backend_names_the_usb_and_udev_checks() {
 
 #[test]
 fn a_recording_cut_short_fails_the_trial_with_cause_camera_and_the_stage_recovers() {
-    let dir = TempDir::new("kinect", "cut");
+    let dir = TempDir::new("kinect-cut").unwrap();
     let config = config();
     let truth = pose_from_params(&[0.62, 0.04, config.table.height_m, 0.0, 0.0, 1.05]);
     // Two frames: one snapshot (a settling frame and the kept one), then the end.

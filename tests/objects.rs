@@ -1,9 +1,9 @@
 //! Procedural category models and OBJ files: closed, outward, in range, varied,
 //! deterministic; OBJ round trip and errors; `cell objects generate`.
 
-use crate::common::TempDir;
 use clap::Parser;
 use graspcell::cli::{run, Cli};
+use graspcell::fsio::TempDir;
 use graspcell::mesh::obj::{parse_obj, read_obj, write_obj};
 use graspcell::mesh::procedural::{
     generate, instance_seed, Category, HandleShape, MugParams, Params,
@@ -306,7 +306,7 @@ fn generation_is_deterministic_and_instances_differ() {
 
 #[test]
 fn obj_round_trip_is_exact() {
-    let dir = TempDir::new("objects", "round-trip");
+    let dir = TempDir::new("objects-round-trip").unwrap();
     for category in Category::ALL {
         let (mesh, _) = generate(category, 5);
         let path = dir.join(format!("{category}.obj"));
@@ -330,7 +330,7 @@ fn obj_round_trip_is_exact() {
 
 #[test]
 fn truncated_and_malformed_obj_files_name_file_and_line() {
-    let dir = TempDir::new("objects", "truncated");
+    let dir = TempDir::new("objects-truncated").unwrap();
     let (mesh, _) = generate(Category::Mug, 9);
     let path = dir.join("mug.obj");
     write_obj(&path, &mesh).unwrap();
@@ -414,7 +414,7 @@ fn truncated_and_malformed_obj_files_name_file_and_line() {
 
 #[test]
 fn cli_generates_meshes_and_params() {
-    let dir = TempDir::new("objects", "cli");
+    let dir = TempDir::new("objects-cli").unwrap();
     let out = dir.join("mugs");
     let cli = Cli::try_parse_from([
         "cell",

@@ -1,10 +1,10 @@
 //! Perception: segmentation of a simulated snapshot and registration of every model
 //! of the category onto it (issue 4).
 
-use crate::common::TempDir;
 use graspcell::category::CategoryDb;
 use graspcell::cloud::segment::SegmentParams;
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{pose_error, pose_from_params, Pose};
 use graspcell::plan::input::fits_input;
 use graspcell::plan::ModelFit;
@@ -424,7 +424,7 @@ fn flat_knives_register_to_every_hammer_without_sliding_away() {
 #[test]
 fn cli_segment_then_register_prints_one_json_entry_per_model() {
     use graspcell::cloud::io::{write_cloud, CloudEncoding};
-    let dir = TempDir::new("perceive", "cli");
+    let dir = TempDir::new("perceive-cli").unwrap();
     let config = config();
     let truth = pose_from_params(&[0.6, -0.05, config.table.height_m, 0.0, 0.0, 0.5]);
     let (cloud, _) = render_mug(4, &truth, 11);

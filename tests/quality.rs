@@ -505,7 +505,7 @@ fn best_first_epsilon_matches_qhull_on_grasp_like_sets() {
 /// `cell quality --contacts FILE --json` on a file written here, and its errors.
 #[test]
 fn cli_reads_contacts_file() {
-    let dir = crate::common::TempDir::new("quality", "contacts");
+    let dir = graspcell::fsio::TempDir::new("quality-contacts").unwrap();
     let file = dir.join("contacts.json");
     let text = r#"{"mu": 0.5, "torque_scale": 0.04, "centroid": [0, 0, 0], "cone_edges": 8,
         "contacts": [

@@ -122,7 +122,7 @@ mod tests {
     #[test]
     fn valid_result_is_used_and_missing_or_bad_falls_back_to_nominal() {
         let config = config();
-        let dir = crate::fsio::TempDir::new("calib-current-use");
+        let dir = crate::fsio::TempDir::new("calib-current-use").unwrap();
         let path = dir.join("hand_eye.toml");
         // Missing.
         let mount = current_base_from_camera(&config, &path);

@@ -90,7 +90,7 @@ mod tests {
 
     #[test]
     fn datagrams_reach_a_notify_socket() {
-        let dir = crate::fsio::TempDir::new("notify");
+        let dir = crate::fsio::TempDir::new("notify").unwrap();
         let path = dir.join("notify.sock");
         let _ = std::fs::remove_file(&path);
         let server = UnixDatagram::bind(&path).unwrap();

@@ -287,7 +287,7 @@ mod tests {
 
     #[test]
     fn setup_files_round_trip_and_bad_ones_are_named() {
-        let dir = crate::fsio::TempDir::new("setup");
+        let dir = crate::fsio::TempDir::new("setup").unwrap();
         let config = CellConfig::load(Path::new("robot/cell.toml")).unwrap();
         let setup = TrialSetup {
             trial_id: 12,
@@ -321,7 +321,7 @@ mod tests {
 
     #[test]
     fn setups_carry_the_object_source_and_the_lab_draw() {
-        let dir = crate::fsio::TempDir::new("setup-src");
+        let dir = crate::fsio::TempDir::new("setup-src").unwrap();
         let config = CellConfig::load(Path::new("robot/cell.toml")).unwrap();
         let db = crate::category::CategoryDb::load(Path::new("db/mug")).unwrap();
         let (object, source) = novel_object_in(Family::HeldApart, Category::Mug, 3, 0, &db);

@@ -7,6 +7,7 @@ use crate::cell::plan::{Databases, METHODS};
 use crate::cell::setup::{ObjectSource, TrialSetup};
 use crate::cell::{span_ms, stop_requested, StageArgs, SYSTEM_IPC_PREFIX};
 use crate::config::CellConfig;
+use crate::fsio::TempDir;
 use crate::ipc::{monotonic_now_ns, Domain, Stage, TrialRequest, TrialResult};
 use crate::mesh::procedural::Category;
 use crate::sim::lab::{LabDraw, LabErrors};
@@ -458,10 +459,14 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
     if !args.json {
         eprintln!("{}", world.lab.text());
     }
-    let temp_run = args.run_dir.is_none();
-    let run_dir = args.run_dir.clone().unwrap_or_else(|| {
-        std::env::temp_dir().join(format!("graspcell-demo-{}", std::process::id()))
-    });
+    // Without --run-dir: a temporary directory, removed when the demo returns.
+    let (run_dir, _temp_run) = match &args.run_dir {
+        Some(dir) => (dir.clone(), None),
+        None => {
+            let temp = TempDir::new("demo").context("creating the demo's run directory")?;
+            (temp.to_path_buf(), Some(temp))
+        }
+    };
     let domain = private_domain("demo")?;
     let stage = StageArgs {
         config: config_path.to_path_buf(),
@@ -518,9 +523,6 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
     let leftover = cell.stop()?;
     let removed = domain.remove().context("removing the demo's IPC domain")?;
     tracing::info!(removed, "demo domain removed");
-    if temp_run {
-        let _ = std::fs::remove_dir_all(&run_dir);
-    }
     let summary = Summary::of(&lines);
     #[derive(Serialize)]
     struct DemoOutput {

@@ -276,7 +276,7 @@ mod tests {
 
     #[test]
     fn every_format_and_encoding_round_trips_through_files() {
-        let dir = TempDir::new("cloud-io");
+        let dir = TempDir::new("cloud-io").unwrap();
         let mut cloud = organised();
         // Give the NaN point a payload: binary files must keep it.
         cloud.points[1].x = f32::from_bits(0x7fc0_1234);
@@ -308,7 +308,7 @@ mod tests {
 
     #[test]
     fn inconsistent_cloud_is_refused_and_nothing_is_written() {
-        let dir = TempDir::new("cloud-invalid");
+        let dir = TempDir::new("cloud-invalid").unwrap();
         let mut cloud = organised();
         cloud.width = 4;
         let path = dir.join("bad.pcd");

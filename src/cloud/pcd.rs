@@ -605,7 +605,7 @@ mod tests {
 
     #[test]
     fn malformed_and_truncated_pcd_name_file_and_place() {
-        let dir = TempDir::new("cloud-pcd-bad");
+        let dir = TempDir::new("cloud-pcd-bad").unwrap();
         let binary = encode_pcd(&organised(), CloudEncoding::Binary).unwrap();
         let text =
             String::from_utf8(encode_pcd(&organised(), CloudEncoding::Ascii).unwrap()).unwrap();
@@ -642,7 +642,7 @@ mod tests {
 
     #[test]
     fn unorganised_cloud_without_normals_round_trips_in_both_encodings() {
-        let dir = TempDir::new("cloud-pcd");
+        let dir = TempDir::new("cloud-pcd").unwrap();
         let cloud = PointCloud::from_points(vec![
             Point3::new(1.5, -2.0, 0.25),
             Point3::new(1e-3, 7.0, 9.5),

@@ -177,7 +177,7 @@ mod tests {
 
     /// A fresh directory with a generated mug mesh (millimetres) and `manifest`.
     fn fixture(tag: &str, manifest: &str) -> TempDir {
-        let dir = TempDir::new(&format!("objects-{tag}"));
+        let dir = TempDir::new(&format!("objects-{tag}")).unwrap();
         let (mut mesh, _) = generate(Category::Mug, 3);
         for v in &mut mesh.vertices {
             v.coords *= 1000.0;
@@ -240,7 +240,7 @@ mod tests {
             "{e}"
         );
         // No manifest at all.
-        let empty = TempDir::new("objects-none");
+        let empty = TempDir::new("objects-none").unwrap();
         let e = load_objects(&empty).unwrap_err().to_string();
         assert!(e.contains(&manifest(&empty)), "{e}");
     }

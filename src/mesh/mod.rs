@@ -227,7 +227,7 @@ mod tests {
     #[test]
     fn every_format_loads_through_one_entry_with_scale() {
         let (mug, _) = procedural::generate(procedural::Category::Mug, 3);
-        let dir = crate::fsio::TempDir::new("load-mesh");
+        let dir = crate::fsio::TempDir::new("load-mesh").unwrap();
         for format in [MeshFormat::Obj, MeshFormat::Stl, MeshFormat::Ply] {
             let path = dir.join(format!("mug.{}", format.extension()));
             write_mesh(&path, &mug).unwrap();

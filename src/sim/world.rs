@@ -1079,7 +1079,7 @@ mod tests {
 
     #[test]
     fn shared_state_files_round_trip_between_handles() {
-        let dir = crate::fsio::TempDir::new("world-link");
+        let dir = crate::fsio::TempDir::new("world-link").unwrap();
         let a = WorldLink::files(&dir).unwrap();
         let b = WorldLink::files(&dir).unwrap();
         assert_eq!(b.palm(), None);

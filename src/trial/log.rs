@@ -962,7 +962,7 @@ mod tests {
 
     #[test]
     fn records_and_reads_back_every_field() {
-        let dir = TempDir::new("roundtrip");
+        let dir = TempDir::new("roundtrip").unwrap();
         let path = dir.join("sub/trials.sqlite");
         let mut log = TrialLog::open(&path).unwrap();
         assert_eq!(log.schema_version().unwrap(), SCHEMA_VERSION);
@@ -1015,7 +1015,7 @@ mod tests {
 
     #[test]
     fn updates_of_unknown_trials_and_invalid_trials_are_refused() {
-        let dir = TempDir::new("invalid");
+        let dir = TempDir::new("invalid").unwrap();
         let mut log = TrialLog::open(dir.join("t.sqlite")).unwrap();
         assert!(matches!(
             log.set_outcome(42, &serde_json::Value::Null),
@@ -1057,7 +1057,7 @@ mod tests {
 
     #[test]
     fn migrations_apply_in_order_once_and_refuse_newer_files() {
-        let dir = TempDir::new("migrate");
+        let dir = TempDir::new("migrate").unwrap();
         let path = dir.join("m.sqlite");
         let create = OpenFlags::SQLITE_OPEN_CREATE;
         let log = TrialLog::open_with(&path, create, &FAKE[..1]).unwrap();
@@ -1093,7 +1093,7 @@ mod tests {
 
     #[test]
     fn a_version_1_log_gains_the_picture_column_and_keeps_its_trials() {
-        let dir = TempDir::new("picture-migration");
+        let dir = TempDir::new("picture-migration").unwrap();
         let path = dir.join("v1.sqlite");
         let create = OpenFlags::SQLITE_OPEN_CREATE;
         let mut log = TrialLog::open_with(&path, create, &MIGRATIONS[..1]).unwrap();
@@ -1116,7 +1116,7 @@ mod tests {
 
     #[test]
     fn other_sqlite_databases_are_refused_and_left_alone() {
-        let dir = TempDir::new("foreign");
+        let dir = TempDir::new("foreign").unwrap();
         let path = dir.join("other.sqlite");
         {
             let conn = Connection::open(&path).unwrap();
