@@ -534,8 +534,7 @@ mod tests {
 
     #[test]
     fn configuration_is_found_in_the_order_a_unix_tool_uses() {
-        let dir = std::env::temp_dir().join(format!("graspcell-locate-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("locate").unwrap();
         let local = dir.join("local.toml");
         let system = dir.join("system.toml");
         let env = dir.join("env.toml");
@@ -548,7 +547,6 @@ mod tests {
         // The variable wins even over existing files, and even when its file is missing.
         assert_eq!(found(Some(&env)).path, env);
         assert_eq!(found(Some(Path::new(""))).path, local);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
@@ -578,8 +576,7 @@ mod tests {
     #[test]
     fn unknown_field_and_bad_value_are_named() {
         let text = std::fs::read_to_string(shipped()).unwrap();
-        let dir = std::env::temp_dir().join(format!("graspcell-config-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("config").unwrap();
         let typo = dir.join("typo.toml");
         std::fs::write(&typo, text.replace("height_m =", "heigth_m =")).unwrap();
         let err = CellConfig::load(&typo).unwrap_err().to_string();
@@ -591,15 +588,13 @@ mod tests {
         std::fs::write(&bad, text.replace("cycle_s = 0.002", "cycle_s = -1.0")).unwrap();
         let err = CellConfig::load(&bad).unwrap_err().to_string();
         assert!(err.contains("fri.cycle_s"), "{err}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
     fn nan_and_infinity_are_refused_in_every_number() {
         // Issue 21 item 4: TOML spells nan and inf; none may reach the cell.
         let text = std::fs::read_to_string(shipped()).unwrap();
-        let dir = std::env::temp_dir().join(format!("graspcell-nan-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("nan").unwrap();
         let cases = [
             ("height_m = 0.0", "height_m = nan", "table.height_m", "NaN"),
             (
@@ -632,15 +627,13 @@ mod tests {
                 "{bad}: {err}"
             );
         }
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
     fn the_robot_controller_address_is_required_and_checked() {
         let text = std::fs::read_to_string(shipped()).unwrap();
         assert!(CellConfig::load(&shipped()).unwrap().fri.robot_addr == "127.0.0.1");
-        let dir = std::env::temp_dir().join(format!("graspcell-robot-addr-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("robot-addr").unwrap();
         let load = |name: &str, text: String| {
             let path = dir.join(name);
             std::fs::write(&path, text).unwrap();
@@ -659,6 +652,5 @@ mod tests {
             );
             assert_eq!(config.unwrap().fri.robot_addr, ok);
         }
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -8,35 +8,14 @@ use graspcell::calib::{
     CalibError, HandEye, HandEyeResult, Method, PointSample, PoseSample, Sample, SampleFile,
     SolveOptions, Weights,
 };
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{pose_error, pose_from_params, Pose};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// The synthetic samples' noise: 0.5 mm and 0.2° per axis on every observation.
 fn noise() -> Noise {
     Noise::typical()
-}
-
-/// A fresh temporary directory, unique per test (process id + counter).
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> Self {
-        static COUNTER: AtomicUsize = AtomicUsize::new(0);
-        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-        let dir =
-            std::env::temp_dir().join(format!("graspcell-calib-{tag}-{}-{n}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        TempDir(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
 }
 
 fn as_samples<T: Copy>(v: &[T], f: fn(T) -> Sample) -> Vec<Sample> {
@@ -384,7 +363,7 @@ fn wrong_frames_are_caught_with_what_to_check() {
 
 #[test]
 fn sample_file_round_trip_through_disk() {
-    let dir = TempDir::new("samples");
+    let dir = TempDir::new("calib-samples").unwrap();
     let scene = SyntheticScene::nominal();
     let mut samples = as_samples(&pose_samples(&scene, 5, &noise(), 1), Sample::Pose);
     samples.extend(as_samples(
@@ -396,7 +375,7 @@ fn sample_file_round_trip_through_disk() {
         comment: None,
         samples,
     };
-    let path = dir.0.join("calib").join("samples-test.json");
+    let path = dir.join("calib").join("samples-test.json");
     file.save(&path).unwrap();
     let back = SampleFile::load(&path).unwrap();
     assert_eq!(back.samples.len(), 8);
@@ -406,7 +385,7 @@ fn sample_file_round_trip_through_disk() {
         assert!((a.target_point_camera() - b.target_point_camera()).norm() < 1e-12);
         assert_eq!(matches!(a, Sample::Pose(_)), matches!(b, Sample::Pose(_)));
     }
-    let err = SampleFile::load(&dir.0.join("missing.json"))
+    let err = SampleFile::load(&dir.join("missing.json"))
         .unwrap_err()
         .to_string();
     assert!(
@@ -435,13 +414,13 @@ fn write_samples(dir: &Path, samples: Vec<Sample>) -> PathBuf {
 
 #[test]
 fn cli_solve_writes_a_result_perception_can_load() {
-    let dir = TempDir::new("cli");
+    let dir = TempDir::new("calib-cli").unwrap();
     let scene = SyntheticScene::nominal();
     let samples = write_samples(
-        &dir.0,
+        &dir,
         as_samples(&pose_samples(&scene, 20, &noise(), 11), Sample::Pose),
     );
-    let out = dir.0.join("calib").join("hand_eye.toml");
+    let out = dir.join("calib").join("hand_eye.toml");
     for method in ["all", "tsai", "park", "daniilidis", "points"] {
         let _ = std::fs::remove_file(&out);
         let args = [
@@ -474,7 +453,7 @@ fn cli_solve_writes_a_result_perception_can_load() {
     }
     // Point samples with a known target position, no refinement, human output.
     let points = write_samples(
-        &dir.0,
+        &dir,
         as_samples(&point_samples(&scene, 10, &noise(), 3), Sample::Point),
     );
     let y = scene.flange_from_target.translation.vector;
@@ -514,8 +493,8 @@ fn cli_solve_writes_a_result_perception_can_load() {
 
 #[test]
 fn cli_rejects_bad_input_and_keeps_the_old_result() {
-    let dir = TempDir::new("cli-bad");
-    let out = dir.0.join("hand_eye.toml");
+    let dir = TempDir::new("calib-cli-bad").unwrap();
+    let out = dir.join("hand_eye.toml");
     std::fs::write(&out, "old").unwrap();
     let run = |samples: &Path, method: &str| {
         let args = [
@@ -530,7 +509,7 @@ fn cli_rejects_bad_input_and_keeps_the_old_result() {
         ];
         format!("{:#}", cell(&args).unwrap_err())
     };
-    let degenerate = write_samples(&dir.0, turning_about_z(&[0.0, 25.0, -30.0, 50.0]));
+    let degenerate = write_samples(&dir, turning_about_z(&[0.0, 25.0, -30.0, 50.0]));
     let err = run(&degenerate, "all");
     assert!(
         err.contains("samples.json") && err.contains("add poses rotating about a different axis"),
@@ -538,7 +517,7 @@ fn cli_rejects_bad_input_and_keeps_the_old_result() {
     );
     let scene = SyntheticScene::nominal();
     let points = write_samples(
-        &dir.0,
+        &dir,
         as_samples(&point_samples(&scene, 6, &noise(), 1), Sample::Point),
     );
     let err = run(&points, "daniilidis");
@@ -546,12 +525,12 @@ fn cli_rejects_bad_input_and_keeps_the_old_result() {
         err.contains("needs pose samples") && err.contains("--method points"),
         "{err}"
     );
-    let garbled = dir.0.join("garbled.json");
+    let garbled = dir.join("garbled.json");
     std::fs::write(&garbled, "{\"created\": \"x\", \"samples\": [").unwrap();
     let err = run(&garbled, "all");
     assert!(err.contains("garbled.json") && err.contains("EOF"), "{err}");
     assert_eq!(std::fs::read_to_string(&out).unwrap(), "old");
-    let names: Vec<_> = std::fs::read_dir(&dir.0)
+    let names: Vec<_> = std::fs::read_dir(&*dir)
         .unwrap()
         .map(|e| e.unwrap().file_name())
         .collect();

@@ -13,6 +13,7 @@ use graspcell::calib::{
 };
 use graspcell::cloud::PointCloud;
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{pose_error, pose_from_params, Pose};
 use graspcell::robot::{HandPose, Robot};
 use graspcell::sim::camera::{Intrinsics, Return, Surface};
@@ -24,13 +25,11 @@ fn config() -> CellConfig {
     CellConfig::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("robot/cell.toml")).unwrap()
 }
 
-/// The true mount: the nominal one moved by 2.0 cm and turned by 2.0° (base frame).
-fn perturbed(nominal: &Pose) -> Pose {
-    let dt = Vector3::new(0.014, -0.012, 0.008);
-    let dr = UnitQuaternion::from_scaled_axis(Vector3::new(0.022, -0.020, 0.015));
+/// The true mount's error: 2.0 cm and 2.0° off the nominal one (base frame).
+fn camera_error() -> Pose {
     Isometry3::from_parts(
-        Translation3::from(nominal.translation.vector + dt),
-        dr * nominal.rotation,
+        Translation3::new(0.014, -0.012, 0.008),
+        UnitQuaternion::from_scaled_axis(Vector3::new(0.022, -0.020, 0.015)),
     )
 }
 
@@ -52,10 +51,12 @@ fn cell() -> Cell {
     };
     let rig = TargetRig::standard();
     // The sphere is mounted 7 mm off its nominal place; the solver is not told where.
-    let truth = SimTruth {
-        base_from_camera: perturbed(&nominal),
-        rig: rig.with_centre(rig.flange_from_centre_m + Vector3::new(0.003, -0.004, 0.005)),
-    };
+    let truth = SimTruth::with_errors(
+        &nominal,
+        rig,
+        &camera_error(),
+        &Vector3::new(0.003, -0.004, 0.005),
+    );
     Cell {
         config,
         robot,
@@ -383,22 +384,12 @@ fn run_cell(args: &[&str]) -> anyhow::Result<std::process::ExitCode> {
     graspcell::cli::run(graspcell::cli::Cli::try_parse_from(argv)?)
 }
 
-fn temp_dir(tag: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "graspcell-calib-collect-{tag}-{}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 /// `cell calibrate collect` then `cell calibrate solve`, then perception's loader:
 /// the mount it returns is the simulated truth (given on the command line as an
 /// error of the nominal mount) within 2 mm and 0.2°.
 #[test]
 fn cli_collect_solve_and_load_the_mount() {
-    let dir = temp_dir("cli");
+    let dir = TempDir::new("calib-collect-cli").unwrap();
     let samples = dir.join("samples.json");
     let result = dir.join("hand_eye.toml");
     let error = [0.012, 0.01, -0.006, -0.015, 0.02, 0.01];
@@ -440,20 +431,20 @@ fn cli_collect_solve_and_load_the_mount() {
         mount.source
     );
     let nominal = config.base_from_camera();
-    let e = pose_from_params(&error);
-    let truth = Isometry3::from_parts(
-        Translation3::from(nominal.translation.vector + e.translation.vector),
-        e.rotation * nominal.rotation,
+    let truth = SimTruth::with_errors(
+        &nominal,
+        TargetRig::standard(),
+        &pose_from_params(&error),
+        &Vector3::zeros(),
     );
-    let (dp, dr) = pose_error(&mount.base_from_camera, &truth);
+    let (dp, dr) = pose_error(&mount.base_from_camera, &truth.base_from_camera);
     assert!(dp < 2e-3 && dr.to_degrees() < 0.2, "{dp} m {dr} rad");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Backends other than the simulation are refused with what to change; nothing is written.
 #[test]
 fn cli_collect_refuses_hardware_backends() {
-    let dir = temp_dir("hw");
+    let dir = TempDir::new("calib-collect-hw").unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let text = std::fs::read_to_string(root.join("robot/cell.toml"))
         .unwrap()
@@ -482,5 +473,4 @@ fn cli_collect_refuses_hardware_backends() {
         "{err}"
     );
     assert!(!out.exists());
-    std::fs::remove_dir_all(&dir).unwrap();
 }

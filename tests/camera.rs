@@ -5,6 +5,7 @@
 use clap::Parser;
 use graspcell::cli::{run, Cli};
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{look_at_optical, pose_from_params, Pose};
 use graspcell::mesh::obj::write_obj;
 use graspcell::mesh::procedural::{generate, Category};
@@ -15,7 +16,6 @@ use graspcell::sim::scene::{load_scene, Scene, TableBox};
 use nalgebra::{Point3, Vector3};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 fn config_path() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("robot/cell.toml")
@@ -23,18 +23,6 @@ fn config_path() -> PathBuf {
 
 fn config() -> CellConfig {
     CellConfig::load(&config_path()).unwrap()
-}
-
-/// A fresh directory for one test; the test removes it.
-fn temp_dir(name: &str) -> PathBuf {
-    static COUNTER: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "graspcell-camera-{name}-{}-{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::SeqCst)
-    ));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 /// A latitude-longitude sphere of radius `r` about the origin, outward winding.
@@ -473,7 +461,7 @@ fn write_scene(dir: &Path, text: &str) -> PathBuf {
 #[test]
 fn scene_files_load_meshes_and_name_what_is_wrong() {
     let config = config();
-    let dir = temp_dir("scene");
+    let dir = TempDir::new("camera-scene").unwrap();
     // A millimetre OBJ file, scaled back to metres by the scene.
     let (mug, _) = generate(Category::Mug, 8);
     let mm = TriMesh {
@@ -572,12 +560,11 @@ pose = { xyz = [0.7, -0.1, 0.0] }
         .unwrap_err()
         .to_string();
     assert!(err.contains("nowhere.toml"), "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn cli_renders_a_cloud_and_a_readable_depth_image() {
-    let dir = temp_dir("cli");
+    let dir = TempDir::new("camera-cli").unwrap();
     let scene = write_scene(
         &dir,
         "[[objects]]\ncategory = \"mug\"\nseed = 1\npose = { xyz = [0.65, 0.0, 0.0], rpy = [0.0, 0.0, 1.2] }\n",
@@ -631,7 +618,6 @@ fn cli_renders_a_cloud_and_a_readable_depth_image() {
     let err = format!("{:#}", run(missing).unwrap_err());
     assert!(err.contains("absent.toml"), "{err}");
     assert!(!dir.join("never.ply").exists());
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]

@@ -3,6 +3,7 @@
 //! frame-exact checks of the protocol.
 
 use graspcell::clock::{Clock, ManualClock, SystemClock};
+use graspcell::fsio::TempDir;
 use graspcell::hw::can::CanFrame;
 use graspcell::hw::can::{
     open_bus, BusState, CanBus, CanError, CandumpBus, Corruption, FaultConfig, Hub, SocketCanBus,
@@ -12,7 +13,6 @@ use graspcell::hw::hand::puck::{group_id, Property};
 use graspcell::hw::hand::{Hand, HandError, HandPositions, HandTiming, MotionOutcome, Puck};
 use graspcell::sim::puck::{EmulatorThread, HandEmulator, HandEmulatorConfig};
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -36,12 +36,6 @@ fn unique(tag: &str) -> String {
 
 fn frame(id: u16, data: &[u8]) -> CanFrame {
     CanFrame::new(id, data).unwrap()
-}
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(unique(tag));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 // ---------------------------------------------------------------------------
@@ -193,14 +187,13 @@ fn conformance_in_process() {
 
 #[test]
 fn conformance_in_process_with_candump_logging() {
-    let dir = temp_dir("candump-conf");
+    let dir = TempDir::new("can-candump-conf").unwrap();
     let bus = VirtualBus::new(&unique("inproc-log"));
     let mut n = 0;
     conformance("in-process+candump", || {
         n += 1;
         Box::new(CandumpBus::create(bus.endpoint(), &dir.join(format!("{n}.log"))).unwrap())
     });
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
@@ -807,7 +800,7 @@ impl Drop for ChildGuard {
 fn hand_emulator_as_child_process_grasps() {
     let name = unique("child");
     let interface = format!("virtual:{name}");
-    let dir = temp_dir("child");
+    let dir = TempDir::new("can-child").unwrap();
     let candump = dir.join("hand.log");
     // This process hosts the hub; the emulator connects as another process.
     let bus = open_bus(&interface).unwrap();
@@ -849,5 +842,4 @@ fn hand_emulator_as_child_process_grasps() {
         stamp.starts_with('(') && stamp.ends_with(')') && stamp.len() == 19,
         "{close_f1}"
     );
-    std::fs::remove_dir_all(&dir).ok();
 }

@@ -2,10 +2,11 @@
 //! closure on the stored meshes (re-simulated here); training writes a database
 //! that loads, and rejects bad teach files by the grasp's name, writing nothing.
 
-use crate::grasp::{cylinder, shipped_hand, side_pose, temp_dir};
+use crate::grasp::{cylinder, shipped_hand, side_pose};
 use graspcell::category::teach::{TeachFile, TeachGrasp, TeachModel};
 use graspcell::category::train::{train, TrainOptions};
 use graspcell::category::{tasks_of, CategoryDb, CategoryError, DATABASE_FILE};
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{Pose, PoseJson};
 use graspcell::mesh::obj::write_obj;
 use graspcell::mesh::procedural::Category;
@@ -113,8 +114,8 @@ fn every_shipped_database_loads_and_its_grasps_are_force_closure() {
 }
 
 /// A models directory with one cylinder and a teach file naming `grasps`.
-fn fixture(name: &str, grasps: Vec<TeachGrasp>) -> (PathBuf, TeachFile) {
-    let dir = temp_dir(name);
+fn fixture(name: &str, grasps: Vec<TeachGrasp>) -> (TempDir, TeachFile) {
+    let dir = TempDir::new(&format!("category-{name}")).unwrap();
     write_obj(&dir.join("can.obj"), &cylinder(0.035, 0.25, 72)).unwrap();
     let teach = TeachFile {
         category: Some(Category::Bottle),
@@ -178,7 +179,6 @@ fn training_writes_a_database_that_loads() {
     // The written file is the human-readable JSON described in the module docs.
     let text = std::fs::read_to_string(out.join(DATABASE_FILE)).unwrap();
     assert!(text.contains("\"task\": \"side\"") && text.contains("\"sigma\""));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -223,7 +223,6 @@ fn training_rejects_a_grasp_without_force_closure_by_name_and_writes_nothing() {
         "{stderr}"
     );
     assert!(!out.join(DATABASE_FILE).exists());
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -277,7 +276,6 @@ fn bad_teach_files_are_errors_naming_the_grasp() {
         err.contains("typo.toml") && err.contains("spred_rad"),
         "{err}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 fn fixture_like(teach: &TeachFile, grasps: Vec<TeachGrasp>) -> TeachFile {
@@ -288,7 +286,7 @@ fn fixture_like(teach: &TeachFile, grasps: Vec<TeachGrasp>) -> TeachFile {
 
 #[test]
 fn a_damaged_database_is_an_error_naming_the_problem() {
-    let dir = temp_dir("damaged");
+    let dir = TempDir::new("category-damaged").unwrap();
     let src = shipped("hammer");
     std::fs::create_dir_all(dir.join("models")).unwrap();
     for entry in std::fs::read_dir(src.join("models")).unwrap() {
@@ -314,5 +312,4 @@ fn a_damaged_database_is_an_error_naming_the_problem() {
     std::fs::remove_file(dir.join("models/hammer_000.ply")).unwrap();
     let err = load_with(&text);
     assert!(err.contains("hammer_000"), "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -9,6 +9,7 @@ use graspcell::cell::harness::{
 use graspcell::cell::setup::TrialSetup;
 use graspcell::cell::StageArgs;
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::ipc::{Domain, FailureCause, Grade, JointStates, Stage, TrialResult};
 use graspcell::mesh::procedural::Category;
 use graspcell::trial::TrialLog;
@@ -27,20 +28,14 @@ struct Fixture {
     config: CellConfig,
     db: CategoryDb,
     log_path: PathBuf,
-    run_dir: PathBuf,
+    /// Removed when the fixture is dropped, after the cell.
+    _run_dir: TempDir,
     n: u64,
 }
 
 fn start(tag: &str, domain: &Domain) -> Fixture {
-    let run_dir = std::env::temp_dir().join(format!("gc-cell-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&run_dir);
-    let stage = StageArgs {
-        config: PathBuf::from("robot/cell.toml"),
-        instance: domain.services().instance().to_string(),
-        ipc_root: Some(domain.root()),
-        ipc_prefix: domain.prefix(),
-        run_dir: run_dir.clone(),
-    };
+    let run_dir = TempDir::new(&format!("cell-{tag}")).unwrap();
+    let stage = StageArgs::in_domain(Path::new("robot/cell.toml"), domain, &run_dir);
     let log_path = run_dir.join("trials.sqlite");
     let options = HarnessOptions {
         stage,
@@ -61,7 +56,7 @@ fn start(tag: &str, domain: &Domain) -> Fixture {
         config: CellConfig::load(Path::new("robot/cell.toml")).unwrap(),
         db: CategoryDb::load(Path::new("db/mug")).unwrap(),
         log_path,
-        run_dir,
+        _run_dir: run_dir,
         n: 0,
     }
 }
@@ -108,7 +103,6 @@ impl Fixture {
             Vec::<PathBuf>::new(),
             "no shared memory left behind"
         );
-        let _ = std::fs::remove_dir_all(&self.run_dir);
     }
 }
 
@@ -193,15 +187,8 @@ fn one_trial_through_every_process_then_a_killed_stage_fails_the_trial_and_rejoi
 fn a_fault_campaign_of_every_kind_is_safe_and_loses_nothing() {
     use graspcell::cell::chaos::{ChaosOptions, FaultKind};
     let domain = Domain::temporary("cell-chaos").unwrap();
-    let run_dir = std::env::temp_dir().join(format!("gc-cell-chaos-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&run_dir);
-    let stage = StageArgs {
-        config: PathBuf::from("robot/cell.toml"),
-        instance: domain.services().instance().to_string(),
-        ipc_root: Some(domain.root()),
-        ipc_prefix: domain.prefix(),
-        run_dir: run_dir.clone(),
-    };
+    let run_dir = graspcell::fsio::TempDir::new("cell-chaos").unwrap();
+    let stage = StageArgs::in_domain(Path::new("robot/cell.toml"), &domain, &run_dir);
     let mut harness = HarnessOptions::demo(stage).unwrap();
     harness.bin_dir = bin_dir();
     harness.hold_s = 0.1;
@@ -248,7 +235,6 @@ fn a_fault_campaign_of_every_kind_is_safe_and_loses_nothing() {
     assert_eq!(log.trials().unwrap().len() as u32, summary.log_rows);
     drop(log);
     domain.remove().unwrap();
-    let _ = std::fs::remove_dir_all(&run_dir);
 }
 
 #[test]
@@ -333,8 +319,7 @@ fn systemd_analyze_verify_passes_on_every_unit_with_the_binaries_installed() {
         analyze.exists(),
         "systemd-analyze is missing: install Debian's systemd package (.ci/run does)"
     );
-    let root = std::env::temp_dir().join(format!("gc-systemd-root-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
+    let root = TempDir::new("cell-systemd-root").unwrap();
     let units = root.join("etc/systemd/system");
     let bin = root.join("usr/local/bin");
     let system = root.join("usr/lib/systemd/system");
@@ -369,7 +354,6 @@ fn systemd_analyze_verify_passes_on_every_unit_with_the_binaries_installed() {
         .args(&names)
         .output()
         .unwrap();
-    let _ = std::fs::remove_dir_all(&root);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
         out.status.success() && stderr.trim().is_empty(),

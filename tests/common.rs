@@ -2,7 +2,6 @@
 
 use std::path::PathBuf;
 use std::process::Command;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// The repository root.
 pub fn root() -> PathBuf {
@@ -15,19 +14,6 @@ pub fn config_path() -> String {
         .join("robot/cell.toml")
         .to_string_lossy()
         .into_owned()
-}
-
-/// A fresh directory for one test (`graspcell-<suite>-<name>-<pid>-<n>`); the test
-/// removes it.
-pub fn temp_dir(suite: &str, name: &str) -> PathBuf {
-    static COUNTER: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "graspcell-{suite}-{name}-{}-{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::SeqCst)
-    ));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 /// Runs the `cell` binary from the repository root with the shipped configuration;

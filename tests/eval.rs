@@ -3,13 +3,14 @@
 //! itself, epsilons are those of simulated grasps, the chart is written; and bad
 //! requests are one clear error with a non-zero exit.
 
-use crate::common::{cell, config_path, root, temp_dir};
+use crate::common::{cell, config_path, root};
 use clap::Parser;
 use graspcell::category::CategoryDb;
 use graspcell::cli::{run, Cli};
 use graspcell::config::CellConfig;
 use graspcell::eval::experiment::Setup;
 use graspcell::eval::{leave_one_out, CategoryRegistrar, PlacementRegion, ViewKind};
+use graspcell::fsio::TempDir;
 use graspcell::plan::{Kernel, PlanOptions};
 use graspcell::robot::hand::HandModel;
 use graspcell::sim::camera::DepthCamera;
@@ -77,7 +78,7 @@ fn check_run(run: &Value, tolerance: f64) {
 
 #[test]
 fn loo_on_three_mugs_tallies_simulated_grasps_and_never_registers_the_target() {
-    let dir = temp_dir("eval", "loo");
+    let dir = TempDir::new("eval-loo").unwrap();
     let png = dir.join("chart.png");
     let models = ["mug_000", "mug_001", "mug_003"];
     let (ok, stdout, stderr) = cell(&[
@@ -183,7 +184,6 @@ fn loo_on_three_mugs_tallies_simulated_grasps_and_never_registers_the_target() {
         .find(|l| l.starts_with("side") && l.contains("gaussian-r"))
         .unwrap_or_else(|| panic!("{stdout}"));
     assert!(line.contains('%'), "{line}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The same seed gives the same experiment; the library path the CLI takes.
@@ -313,7 +313,7 @@ fn bad_requests_are_one_clear_error() {
     assert!(e.contains("cauchy"), "{e}");
 
     // An empty database.
-    let dir = temp_dir("eval", "empty");
+    let dir = TempDir::new("eval-empty").unwrap();
     let mug = dir.join("mug");
     std::fs::create_dir_all(&mug).unwrap();
     let mut file: Value = serde_json::from_str(
@@ -332,12 +332,11 @@ fn bad_requests_are_one_clear_error() {
         dir.to_str().unwrap(),
     ]);
     assert!(e.contains("no models") && e.contains("mug"), "{e}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn objects_dirs_with_a_bad_manifest_mesh_or_category_are_one_error_naming_the_file() {
-    let dir = temp_dir("eval", "objects");
+    let dir = TempDir::new("eval-objects").unwrap();
     let manifest = dir.join("objects.toml");
     let mesh = root().join("db/mug/models/mug_000.ply");
     std::fs::copy(&mesh, dir.join("mine.ply")).unwrap();
@@ -383,7 +382,6 @@ fn objects_dirs_with_a_bad_manifest_mesh_or_category_are_one_error_naming_the_fi
     // The old count of `cell campaign --objects N` is now --instances: say so.
     let e = error_of(&["campaign", "--objects", "6"]);
     assert!(e.contains("--instances"), "{e}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]

@@ -13,6 +13,7 @@ use graspcell::execute::{
     ExecuteError, ExecutionReport, ExecutionRequest, Executor, ExecutorConfig, Outcome, Phase,
     SafetyError, SafetyLimits,
 };
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{pose_from_params, Pose, PoseJson};
 use graspcell::hw::can::{CanBus, FaultConfig, Hub, UnixBus};
 use graspcell::hw::fri::{DriverConfig, FriDriver, FriState, Quality};
@@ -44,12 +45,6 @@ fn unique(tag: &str) -> String {
 
 fn config_path() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_CONFIG_PATH)
-}
-
-fn temp_dir(tag: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(unique(tag));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 fn top_down(x: f64, y: f64, z: f64) -> Pose {
@@ -110,11 +105,12 @@ struct Rig {
     hand: Option<Hand<Box<dyn CanBus>>>,
     hub: Option<Hub>,
     candump: PathBuf,
-    dir: PathBuf,
     clock: Arc<dyn Clock>,
-    // Dropped last: the processes outlive the drivers talking to them.
+    // Dropped last: the processes outlive the drivers talking to them, and the
+    // directory (the hand emulator's CAN log) the processes.
     _arm: ChildGuard,
     _hand: ChildGuard,
+    _dir: TempDir,
 }
 
 impl Rig {
@@ -122,7 +118,7 @@ impl Rig {
         let cell = CellConfig::load(&config_path()).unwrap();
         let robot = Arc::new(Robot::load(&cell).unwrap());
         let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
-        let dir = temp_dir("execute");
+        let dir = TempDir::new("execute-execute").unwrap();
         let candump = dir.join("hand.log");
 
         let driver = FriDriver::start(
@@ -196,10 +192,10 @@ impl Rig {
             hand: Some(hand),
             hub,
             candump,
-            dir,
             clock,
             _arm: arm,
             _hand: hand_child,
+            _dir: dir,
         }
     }
 
@@ -227,12 +223,6 @@ impl Rig {
 
     fn candump_log(&self) -> String {
         std::fs::read_to_string(&self.candump).unwrap_or_default()
-    }
-}
-
-impl Drop for Rig {
-    fn drop(&mut self) {
-        std::fs::remove_dir_all(&self.dir).ok();
     }
 }
 
@@ -564,7 +554,7 @@ fn cell_execute(config: &Path, plan: &Path) -> (bool, serde_json::Value) {
 /// p.json` runs, unchanged (one schema), on the shipped mug database.
 #[test]
 fn cell_plan_out_then_cell_execute_runs_the_planned_grasp() {
-    let dir = temp_dir("plan-then-execute");
+    let dir = TempDir::new("execute-plan-then-execute").unwrap();
     let cell = CellConfig::load(&config_path()).unwrap();
     let config = private_config(&dir, &cell);
     let db = Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug");
@@ -618,12 +608,11 @@ fn cell_plan_out_then_cell_execute_runs_the_planned_grasp() {
             plan.palm
         );
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
-    let dir = temp_dir("cli");
+    let dir = TempDir::new("execute-cli").unwrap();
     let cell = CellConfig::load(&config_path()).unwrap();
     let robot = Robot::load(&cell).unwrap();
     let config = private_config(&dir, &cell);
@@ -655,5 +644,4 @@ fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
         json["error"].as_str().unwrap().contains("below the table"),
         "{json:#}"
     );
-    std::fs::remove_dir_all(&dir).ok();
 }

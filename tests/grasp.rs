@@ -4,6 +4,7 @@
 //! inward normals (checked against the cylinder's own geometry here).
 
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{params_from_pose, Pose};
 use graspcell::mesh::obj::write_obj;
 use graspcell::mesh::TriMesh;
@@ -12,20 +13,7 @@ use graspcell::quality::QualityParams;
 use graspcell::robot::hand::HandModel;
 use nalgebra::{Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use std::f64::consts::TAU;
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-/// A fresh directory for one test; the test removes it.
-pub fn temp_dir(name: &str) -> PathBuf {
-    static COUNTER: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "graspcell-grasp-{name}-{}-{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::SeqCst)
-    ));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use std::path::Path;
 
 /// A closed, outward cylinder about z, centred on the origin.
 pub fn cylinder(radius: f64, height: f64, segments: u32) -> TriMesh {
@@ -116,7 +104,7 @@ fn library_side_grasp_of_a_35_mm_cylinder_is_force_closure_with_three_fingers() 
 
 #[test]
 fn cli_closes_the_hand_around_a_cylinder_file() {
-    let dir = temp_dir("cli");
+    let dir = TempDir::new("grasp-cli").unwrap();
     let radius = 0.035;
     let mesh_path = dir.join("cylinder.obj");
     write_obj(&mesh_path, &cylinder(radius, 0.25, 72)).unwrap();
@@ -211,7 +199,6 @@ fn cli_closes_the_hand_around_a_cylinder_file() {
         &pose,
     ]);
     assert!(String::from_utf8_lossy(&out.stderr).contains("none.obj"));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]

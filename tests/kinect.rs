@@ -5,12 +5,13 @@
 //! device; a recording cut short mid-run. Needs `--features kinect` and Debian's
 //! libfreenect-dev (`.ci/setup` installs it).
 
-use crate::common::{cell, root, temp_dir};
+use crate::common::{cell, root};
 use graspcell::calib::{HandEyeResult, ResidualStats};
 use graspcell::category::CategoryDb;
 use graspcell::cell::StageArgs;
 use graspcell::cloud::segment::SegmentParams;
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{pose_error, pose_from_params, Pose, PoseJson};
 use graspcell::hw::kinect::device::{Kinect, KinectOptions};
 use graspcell::hw::kinect::KinectError;
@@ -113,13 +114,7 @@ impl Process {
         extra: &[String],
         env: &[(&str, &Path)],
     ) -> Process {
-        let args = StageArgs {
-            config: config.to_path_buf(),
-            instance: domain.services().instance().to_string(),
-            ipc_root: Some(domain.root()),
-            ipc_prefix: domain.prefix(),
-            run_dir: run_dir.to_path_buf(),
-        };
+        let args = StageArgs::in_domain(config, domain, run_dir);
         let stderr = run_dir.join(format!("{stage}.stderr"));
         std::fs::create_dir_all(run_dir).unwrap();
         let bin =
@@ -228,7 +223,7 @@ impl Operator {
 #[test]
 fn simulated_mug_recorded_for_fakenect_registers_through_the_kinect_backend_within_5_mm_and_5_deg()
 {
-    let dir = temp_dir("kinect", "e2e");
+    let dir = TempDir::new("kinect-e2e").unwrap();
     let config = config();
     // Handle visible: turned 60 deg towards the camera (as the perception tests).
     let truth = pose_from_params(&[0.62, 0.04, config.table.height_m, 0.0, 0.0, 1.05]);
@@ -309,12 +304,11 @@ fn simulated_mug_recorded_for_fakenect_registers_through_the_kinect_backend_with
         dp * 1e3,
         dr.to_degrees()
     );
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn a_calibration_tilted_by_5_deg_fails_the_gravity_check_with_a_warning() {
-    let dir = temp_dir("kinect", "gravity");
+    let dir = TempDir::new("kinect-gravity").unwrap();
     let config = config();
     let truth = pose_from_params(&[0.62, 0.04, config.table.height_m, 0.0, 0.0, 1.05]);
     let recording = record_mug(&dir, &truth, 2);
@@ -369,7 +363,6 @@ fn a_calibration_tilted_by_5_deg_fails_the_gravity_check_with_a_warning() {
     })
     .unwrap();
     assert!(seen, "no warning: {}", camera.stderr());
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
@@ -391,7 +384,7 @@ fn without_a_kinect_the_backend_names_the_usb_and_udev_checks() {
     );
 
     // The stage says so at start, stays up, and fails each trial with the fault.
-    let dir = temp_dir("kinect", "nodevice");
+    let dir = TempDir::new("kinect-nodevice").unwrap();
     let domain = Domain::temporary("kinect-nodevice").unwrap();
     let camera = Process::start(
         "camera",
@@ -413,12 +406,11 @@ fn without_a_kinect_the_backend_names_the_usb_and_udev_checks() {
         operator.status(&camera).fault().unwrap(),
         CameraFault::NoDevice
     );
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn a_recording_cut_short_fails_the_trial_with_cause_camera_and_the_stage_recovers() {
-    let dir = temp_dir("kinect", "cut");
+    let dir = TempDir::new("kinect-cut").unwrap();
     let config = config();
     let truth = pose_from_params(&[0.62, 0.04, config.table.height_m, 0.0, 0.0, 1.05]);
     // Two frames: one snapshot (a settling frame and the kept one), then the end.
@@ -519,5 +511,4 @@ fn a_recording_cut_short_fails_the_trial_with_cause_camera_and_the_stage_recover
         .iter()
         .any(|t| format!("{t:?}").contains("camera: the device vanished mid-run"));
     assert!(noted, "{trials:?}");
-    std::fs::remove_dir_all(&dir).ok();
 }

@@ -3,6 +3,7 @@
 
 use clap::Parser;
 use graspcell::cli::{run, Cli};
+use graspcell::fsio::TempDir;
 use graspcell::mesh::obj::{parse_obj, read_obj, write_obj};
 use graspcell::mesh::procedural::{
     generate, instance_seed, Category, HandleShape, MugParams, Params,
@@ -12,20 +13,7 @@ use graspcell::mesh::topology::{
 };
 use graspcell::mesh::{MeshError, TriMesh};
 use std::f64::consts::PI;
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-/// A fresh directory for one test; the test removes it.
-fn temp_dir(name: &str) -> PathBuf {
-    static COUNTER: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "graspcell-objects-{name}-{}-{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::SeqCst)
-    ));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use std::path::Path;
 
 /// `lo <= value <= hi` (a rounding margin of 1e-12 m).
 fn within(value: f64, lo: f64, hi: f64) -> bool {
@@ -318,7 +306,7 @@ fn generation_is_deterministic_and_instances_differ() {
 
 #[test]
 fn obj_round_trip_is_exact() {
-    let dir = temp_dir("round-trip");
+    let dir = TempDir::new("objects-round-trip").unwrap();
     for category in Category::ALL {
         let (mesh, _) = generate(category, 5);
         let path = dir.join(format!("{category}.obj"));
@@ -338,12 +326,11 @@ fn obj_round_trip_is_exact() {
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     assert_eq!(names.len(), 4, "{names:?}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn truncated_and_malformed_obj_files_name_file_and_line() {
-    let dir = temp_dir("truncated");
+    let dir = TempDir::new("objects-truncated").unwrap();
     let (mesh, _) = generate(Category::Mug, 9);
     let path = dir.join("mug.obj");
     write_obj(&path, &mesh).unwrap();
@@ -423,12 +410,11 @@ fn truncated_and_malformed_obj_files_name_file_and_line() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("x.obj"), "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn cli_generates_meshes_and_params() {
-    let dir = temp_dir("cli");
+    let dir = TempDir::new("objects-cli").unwrap();
     let out = dir.join("mugs");
     let cli = Cli::try_parse_from([
         "cell",
@@ -473,5 +459,4 @@ fn cli_generates_meshes_and_params() {
         "x",
     ]);
     assert!(bad.unwrap_err().to_string().contains("cup"));
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -4,6 +4,7 @@
 use graspcell::category::CategoryDb;
 use graspcell::cloud::segment::SegmentParams;
 use graspcell::config::CellConfig;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{pose_error, pose_from_params, Pose};
 use graspcell::plan::input::fits_input;
 use graspcell::plan::ModelFit;
@@ -266,15 +267,6 @@ fn accuracy_100_trials_handle_visible() {
     assert!(first >= 90, "own model first in {first}/100");
 }
 
-/// A fresh directory for one test; the test removes it.
-fn temp_dir(name: &str) -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("graspcell-perceive-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 fn mug_cloud(index: usize) -> graspcell::cloud::PointCloud {
     graspcell::cloud::sample::sample_surface(&mug_db().meshes[index], 6000, 3).unwrap()
 }
@@ -432,7 +424,7 @@ fn flat_knives_register_to_every_hammer_without_sliding_away() {
 #[test]
 fn cli_segment_then_register_prints_one_json_entry_per_model() {
     use graspcell::cloud::io::{write_cloud, CloudEncoding};
-    let dir = temp_dir("cli");
+    let dir = TempDir::new("perceive-cli").unwrap();
     let config = config();
     let truth = pose_from_params(&[0.6, -0.05, config.table.height_m, 0.0, 0.0, 0.5]);
     let (cloud, _) = render_mug(4, &truth, 11);
@@ -551,5 +543,4 @@ fn cli_segment_then_register_prints_one_json_entry_per_model() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no object on the table"));
     assert!(!none.exists());
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -2,7 +2,8 @@
 //! cell gets its picture named in its log row; `cell trial show` writes a PNG and a
 //! GLB, and the GLB is read back and validated by the `gltf` crate.
 
-use crate::common::{cell, temp_dir};
+use crate::common::cell;
+use graspcell::fsio::TempDir;
 use graspcell::trial::TrialLog;
 use std::path::Path;
 
@@ -26,7 +27,7 @@ fn count(rgb: &[u8], pred: impl Fn([u8; 3]) -> bool) -> usize {
 
 #[test]
 fn a_campaign_trial_has_a_picture_and_trial_show_writes_png_and_a_valid_glb() {
-    let dir = temp_dir("picture", "campaign");
+    let dir = TempDir::new("picture-campaign").unwrap();
     let log_path = dir.join("campaign.sqlite");
     let run_dir = dir.join("run");
     let (ok, out, err) = cell(&[
@@ -172,5 +173,4 @@ fn a_campaign_trial_has_a_picture_and_trial_show_writes_png_and_a_valid_glb() {
     assert!(index.contains("id=\"table2\""));
     assert_eq!(read_png(&html_dir.join(&picture)).2, rgb);
     read_png(&html_dir.join("failure_causes.png"));
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -1,9 +1,10 @@
 //! `cell plan` end to end over fits and grasps files, and the errors of bad input:
 //! NaN in the fits, a task without grasps, an empty database, unknown models.
 
-use crate::common::{cell as cell_bin, config_path, temp_dir};
+use crate::common::{cell as cell_bin, config_path};
 use clap::Parser;
 use graspcell::cli::{run, Cli};
+use graspcell::fsio::TempDir;
 use graspcell::geometry::pose_from_params;
 use graspcell::plan::input::{read_fits, read_grasps, FitJson, FitsFile, GraspJson, GraspsFile};
 use graspcell::plan::synthetic::{synthetic_problem, SyntheticSpec};
@@ -56,7 +57,7 @@ fn cell_plan(fits: &Path, grasps: &Path, task: &str, extra: &[&str]) -> anyhow::
 
 #[test]
 fn files_round_trip_and_plan_the_same() {
-    let dir = temp_dir("plan", "round-trip");
+    let dir = TempDir::new("plan-round-trip").unwrap();
     let (fits, grasps) = problem();
     let (f, g) = write_files(&dir, &fits, &grasps);
     let fits_back = read_fits(&f).unwrap();
@@ -89,12 +90,11 @@ fn files_round_trip_and_plan_the_same() {
     let a = plan(&fits, &grasps, "top", &options, None).unwrap();
     let b = plan(&fits_back, &grasps_back, "top", &options, None).unwrap();
     assert!((a.plan.grasp.log_objective - b.plan.grasp.log_objective).abs() < 1e-9);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn cli_plans_with_each_kernel_and_the_robot() {
-    let dir = temp_dir("plan", "cli");
+    let dir = TempDir::new("plan-cli").unwrap();
     let (fits, grasps) = problem();
     let (f, g) = write_files(&dir, &fits, &grasps);
     cell_plan(&f, &g, "top", &["--json"]).unwrap();
@@ -118,12 +118,11 @@ fn cli_plans_with_each_kernel_and_the_robot() {
     .unwrap_err()
     .to_string();
     assert!(err.contains("cauchy"), "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn bad_input_gives_one_clear_error() {
-    let dir = temp_dir("plan", "bad");
+    let dir = TempDir::new("plan-bad").unwrap();
     let (fits, grasps) = problem();
     let (f, g) = write_files(&dir, &fits, &grasps);
     let error = |fits: &Path, grasps: &Path, task: &str| {
@@ -203,7 +202,6 @@ fn bad_input_gives_one_clear_error() {
         err.to_string().contains("grasp 0") && err.to_string().contains("sigma[2]"),
         "{err}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// `cell plan --db`: the shipped mug database, every model registered at the same pose
@@ -211,7 +209,7 @@ fn bad_input_gives_one_clear_error() {
 /// handle grasp; an unknown task names the tasks.
 #[test]
 fn plans_from_the_shipped_category_database() {
-    let dir = temp_dir("plan", "db");
+    let dir = TempDir::new("plan-db").unwrap();
     let db_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug");
     let db = graspcell::category::CategoryDb::load(&db_dir).unwrap();
     let fits: Vec<ModelFit> = db
@@ -278,7 +276,6 @@ fn plans_from_the_shipped_category_database() {
     ];
     let e = format!("{:#}", run(Cli::try_parse_from(argv).unwrap()).unwrap_err());
     assert!(e.contains("pour") && e.contains("handle"), "{e}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A category database of `models` of the shipped mug database (and their grasps),
@@ -327,7 +324,7 @@ fn pose_of(v: &serde_json::Value) -> graspcell::geometry::Pose {
 #[test]
 fn plans_from_a_cloud_and_from_register_output() {
     use graspcell::cloud::io::{write_cloud, CloudEncoding};
-    let dir = temp_dir("plan", "cloud");
+    let dir = TempDir::new("plan-cloud").unwrap();
     let db_dir = mug_subset_db(&dir, &["mug_000", "mug_003"]);
     let db = graspcell::category::CategoryDb::load(&db_dir).unwrap();
     let cell = graspcell::config::CellConfig::load(Path::new(&config_path())).unwrap();
@@ -435,12 +432,11 @@ fn plans_from_a_cloud_and_from_register_output() {
             && stderr.contains("mug_000 (too few inliers)"),
         "{stderr}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn bad_cloud_requests_are_clear_errors() {
-    let dir = temp_dir("plan", "cloud-bad");
+    let dir = TempDir::new("plan-cloud-bad").unwrap();
     let config = config_path();
     let plan_err = |args: &[&str]| {
         let mut argv = vec!["cell", "--config", &config, "plan"];
@@ -509,5 +505,4 @@ fn bad_cloud_requests_are_clear_errors() {
         "top",
     ]);
     assert!(e.contains("has no models"), "{e}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

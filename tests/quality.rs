@@ -505,8 +505,7 @@ fn best_first_epsilon_matches_qhull_on_grasp_like_sets() {
 /// `cell quality --contacts FILE --json` on a file written here, and its errors.
 #[test]
 fn cli_reads_contacts_file() {
-    let dir = std::env::temp_dir().join(format!("graspcell-quality-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = graspcell::fsio::TempDir::new("quality-contacts").unwrap();
     let file = dir.join("contacts.json");
     let text = r#"{"mu": 0.5, "torque_scale": 0.04, "centroid": [0, 0, 0], "cone_edges": 8,
         "contacts": [
@@ -559,5 +558,4 @@ fn cli_reads_contacts_file() {
     let out = run(&file);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("friction"));
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -2,7 +2,7 @@
 //! WebDriver, the token on every write, and malformed or huge requests refused
 //! without a change to the log.
 
-use crate::common::temp_dir;
+use graspcell::fsio::TempDir;
 use graspcell::geometry::{Pose, PoseJson};
 use graspcell::mesh::procedural::{generate, Category};
 use graspcell::serve::{ServeOptions, Server, MAX_BODY_BYTES};
@@ -206,7 +206,7 @@ fn snapshot(log_path: &Path) -> String {
 
 #[test]
 fn a_write_without_the_token_is_refused_and_changes_nothing() {
-    let dir = temp_dir("serve", "token");
+    let dir = TempDir::new("serve-token").unwrap();
     let (log_path, _, b) = fixture_log(&dir);
     let server = Running::start(&log_path);
     let before = snapshot(&log_path);
@@ -259,12 +259,11 @@ fn a_write_without_the_token_is_refused_and_changes_nothing() {
     );
     assert_eq!(log.grade_history(b).unwrap().len(), 2);
     drop(server);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn malformed_or_huge_requests_get_4xx_and_change_nothing() {
-    let dir = temp_dir("serve", "malformed");
+    let dir = TempDir::new("serve-malformed").unwrap();
     let (log_path, a, _) = fixture_log(&dir);
     let server = Running::start(&log_path);
     let before = snapshot(&log_path);
@@ -346,7 +345,6 @@ fn malformed_or_huge_requests_get_4xx_and_change_nothing() {
         "a refused request changed the log"
     );
     drop(server);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Chromium's WebDriver, started on a free port, killed on drop.
@@ -513,7 +511,7 @@ impl Drop for Driver {
 
 #[test]
 fn grading_in_headless_chromium_writes_the_row_and_keeps_the_history() {
-    let dir = temp_dir("serve", "browser");
+    let dir = TempDir::new("serve-browser").unwrap();
     let (log_path, a, _) = fixture_log(&dir);
     let server = Running::start(&log_path);
     let driver = Driver::start(&dir);
@@ -587,5 +585,4 @@ fn grading_in_headless_chromium_writes_the_row_and_keeps_the_history() {
     assert_eq!(history[0].source, GradeSource::Simulated);
     assert_eq!(history[1].grading, grading);
     assert_eq!(history[1].source, GradeSource::Observer);
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -1,6 +1,7 @@
 //! The trial log end to end: crash safety under SIGKILL, the sign test against exact
 //! integer arithmetic, CSV import/export, and bad input through the `cell` binary.
 
+use graspcell::fsio::TempDir;
 use graspcell::geometry::PoseJson;
 use graspcell::trial::{
     FailureCause, Grade, GradeSource, Grading, NewTrial, ObjectRef, Placement, Report, TrialError,
@@ -9,35 +10,6 @@ use graspcell::trial::{
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-/// A unique empty directory for one test, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(name: &str) -> Self {
-        static COUNTER: AtomicUsize = AtomicUsize::new(0);
-        let dir = std::env::temp_dir().join(format!(
-            "graspcell-tests-trial-{name}-{}-{}",
-            std::process::id(),
-            COUNTER.fetch_add(1, Ordering::Relaxed)
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        TempDir(dir)
-    }
-
-    fn join(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 fn trial(method: &str, object: u32, placement: u32) -> NewTrial {
     NewTrial {
         started_at: UtcTimestamp::from_unix_ms(1_740_000_000_000 + i64::from(object) * 60_000),
@@ -121,9 +93,9 @@ fn paired_campaign(log: &mut TrialLog, wins: u32, losses: u32, ties: u32) {
 
 #[test]
 fn sign_test_p_values_equal_exact_integer_computation() {
-    let dir = TempDir::new("signtest");
+    let dir = TempDir::new("trial-signtest").unwrap();
     for (wins, losses, ties) in [(20_u32, 2_u32, 6_u32), (70, 40, 3), (9, 11, 0), (0, 0, 4)] {
-        let path = dir.join(&format!("{wins}-{losses}-{ties}.sqlite"));
+        let path = dir.join(format!("{wins}-{losses}-{ties}.sqlite"));
         let mut log = TrialLog::open(&path).unwrap();
         paired_campaign(&mut log, wins, losses, ties);
         let report = Report::from_trials(&log.trials().unwrap(), Some("test-campaign"));
@@ -155,7 +127,7 @@ fn sign_test_p_values_equal_exact_integer_computation() {
 
 #[test]
 fn report_counts_the_failure_table_from_the_log() {
-    let dir = TempDir::new("report");
+    let dir = TempDir::new("trial-report").unwrap();
     let mut log = TrialLog::open(dir.join("t.sqlite")).unwrap();
     paired_campaign(&mut log, 20, 2, 6);
     let r = Report::from_trials(&log.trials().unwrap(), None);
@@ -190,7 +162,7 @@ fn report_counts_the_failure_table_from_the_log() {
 
 #[test]
 fn regrading_keeps_history_and_unknown_trials_change_nothing() {
-    let dir = TempDir::new("regrade");
+    let dir = TempDir::new("trial-regrade").unwrap();
     let mut log = TrialLog::open(dir.join("t.sqlite")).unwrap();
     let id = log.record_trial(&trial("laplace", 1, 0)).unwrap();
     let first = grading(Grade::Failure, Some(FailureCause::Registration));
@@ -234,7 +206,7 @@ fn regrading_keeps_history_and_unknown_trials_change_nothing() {
 
 #[test]
 fn export_then_import_round_trips_grades() {
-    let dir = TempDir::new("csv");
+    let dir = TempDir::new("trial-csv").unwrap();
     let (src_path, dst_path) = (dir.join("src.sqlite"), dir.join("dst.sqlite"));
     let mut src = TrialLog::open(&src_path).unwrap();
     let mut dst = TrialLog::open(&dst_path).unwrap();
@@ -308,7 +280,7 @@ fn export_then_import_round_trips_grades() {
 
 #[test]
 fn a_bad_csv_line_imports_nothing() {
-    let dir = TempDir::new("csvbad");
+    let dir = TempDir::new("trial-csvbad").unwrap();
     let mut log = TrialLog::open(dir.join("t.sqlite")).unwrap();
     for i in 0..3 {
         log.record_trial(&trial("laplace", i, 0)).unwrap();
@@ -355,7 +327,7 @@ fn a_bad_csv_line_imports_nothing() {
 
 #[test]
 fn corrupt_files_are_reported_and_left_byte_for_byte() {
-    let dir = TempDir::new("corrupt");
+    let dir = TempDir::new("trial-corrupt").unwrap();
     // Not SQLite at all.
     let text = dir.join("notes.sqlite");
     std::fs::write(&text, "trial 1: success\ntrial 2: failure (grip)\n").unwrap();
@@ -411,7 +383,7 @@ fn cell(args: &[&str]) -> std::process::Output {
 
 #[test]
 fn cell_grade_report_import_export_on_the_command_line() {
-    let dir = TempDir::new("cli");
+    let dir = TempDir::new("trial-cli").unwrap();
     let log_path = dir.join("trials/t.sqlite");
     let log_arg = log_path.to_str().unwrap();
     {
@@ -634,7 +606,7 @@ fn crash_child_writes_and_grades() {
 
 #[test]
 fn killed_writer_loses_no_committed_trial_or_grade() {
-    let dir = TempDir::new("crash");
+    let dir = TempDir::new("trial-crash").unwrap();
     let path = dir.join("trials.sqlite");
     let exe = std::env::current_exe().unwrap();
     // The child's test name: this module's path without the crate (`trial::...` in

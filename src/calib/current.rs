@@ -119,20 +119,10 @@ mod tests {
         CellConfig::load(&path).unwrap()
     }
 
-    fn temp_dir(tag: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!(
-            "graspcell-calib-current-{tag}-{}",
-            std::process::id()
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
-    }
-
     #[test]
     fn valid_result_is_used_and_missing_or_bad_falls_back_to_nominal() {
         let config = config();
-        let dir = temp_dir("use");
+        let dir = crate::fsio::TempDir::new("calib-current-use").unwrap();
         let path = dir.join("hand_eye.toml");
         // Missing.
         let mount = current_base_from_camera(&config, &path);
@@ -177,6 +167,5 @@ mod tests {
             "{:?}",
             mount.source
         );
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

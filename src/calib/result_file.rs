@@ -1,6 +1,6 @@
 //! The calibration result file (`calib/hand_eye.toml`), read by perception at start.
 
-use super::samples::{pose_from_json, write_atomic, MIN_SAMPLES};
+use super::samples::{pose_from_json, MIN_SAMPLES};
 use super::{CalibError, ResidualStats, Solution};
 use crate::geometry::{GeometryError, Pose, PoseJson};
 use serde::{Deserialize, Serialize};
@@ -120,7 +120,12 @@ impl HandEyeResult {
 
     /// Writes the file atomically (temporary file, then rename).
     pub fn save(&self, path: &Path) -> Result<(), CalibError> {
-        write_atomic(path, self.to_toml().as_bytes())
+        crate::fsio::create_parent_dir(path)
+            .and_then(|()| crate::fsio::write_atomically(path, self.to_toml().as_bytes()))
+            .map_err(|source| CalibError::Write {
+                path: path.to_path_buf(),
+                source,
+            })
     }
 
     /// The camera's pose in the robot base frame.

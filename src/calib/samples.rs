@@ -231,7 +231,12 @@ impl SampleFile {
 
     /// Writes the file atomically (temporary file, then rename).
     pub fn save(&self, path: &Path) -> Result<(), CalibError> {
-        write_atomic(path, self.to_json().as_bytes())
+        crate::fsio::create_parent_dir(path)
+            .and_then(|()| crate::fsio::write_atomically(path, self.to_json().as_bytes()))
+            .map_err(|source| CalibError::Write {
+                path: path.to_path_buf(),
+                source,
+            })
     }
 }
 
@@ -277,19 +282,6 @@ pub(super) fn pose_from_json(json: &PoseJson, what: &str) -> Result<Pose, String
         return Err(format!("{what}: no rotation (give rpy or quat_xyzw)"));
     }
     Ok(pose)
-}
-
-/// Writes `bytes` to `path` atomically, creating its directory.
-pub(super) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CalibError> {
-    let err = |source| CalibError::Write {
-        path: path.to_path_buf(),
-        source,
-    };
-    match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => std::fs::create_dir_all(d).map_err(err)?,
-        _ => {}
-    }
-    crate::fsio::write_atomically(path, bytes).map_err(err)
 }
 
 #[cfg(test)]
@@ -428,18 +420,5 @@ mod tests {
             err.starts_with("sample 7: target_point_camera_m holds a non-finite value (NaN)"),
             "{err}"
         );
-    }
-
-    #[test]
-    fn atomic_write_replaces_and_leaves_no_temp() {
-        let dir =
-            std::env::temp_dir().join(format!("graspcell-calib-atomic-{}", std::process::id()));
-        let path = dir.join("sub").join("f.txt");
-        write_atomic(&path, b"one").unwrap();
-        write_atomic(&path, b"two").unwrap();
-        assert_eq!(std::fs::read_to_string(&path).unwrap(), "two");
-        let names: Vec<_> = std::fs::read_dir(path.parent().unwrap()).unwrap().collect();
-        assert_eq!(names.len(), 1);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -270,6 +270,44 @@ pub struct SimTruth {
     pub rig: TargetRig,
 }
 
+impl SimTruth {
+    /// The truth of an exact cell: the camera where the configuration says, the
+    /// sphere where the rig says.
+    pub fn exact(nominal_base_from_camera: Pose, nominal_rig: TargetRig) -> SimTruth {
+        SimTruth {
+            base_from_camera: nominal_base_from_camera,
+            rig: nominal_rig,
+        }
+    }
+
+    /// The truth of a cell whose camera is mounted `camera_error` off the nominal
+    /// `base_from_camera` (its translation added, its rotation applied, both in the
+    /// base frame) and whose sphere centre is `target_error_m` (flange frame) off the
+    /// nominal rig's.
+    pub fn with_errors(
+        nominal_base_from_camera: &Pose,
+        nominal_rig: TargetRig,
+        camera_error: &Pose,
+        target_error_m: &Vector3<f64>,
+    ) -> SimTruth {
+        SimTruth {
+            base_from_camera: Isometry3::from_parts(
+                Translation3::from(
+                    nominal_base_from_camera.translation.vector + camera_error.translation.vector,
+                ),
+                camera_error.rotation * nominal_base_from_camera.rotation,
+            ),
+            rig: nominal_rig.with_centre(nominal_rig.flange_from_centre_m + target_error_m),
+        }
+    }
+
+    /// How far the true camera mount is from `nominal_base_from_camera`: translation
+    /// (m) and rotation (rad).
+    pub fn camera_error_from(&self, nominal_base_from_camera: &Pose) -> (f64, f64) {
+        crate::geometry::pose_error(&self.base_from_camera, nominal_base_from_camera)
+    }
+}
+
 /// A simulated arm at `start` and a camera at the true mount seeing the true rig,
 /// the hand in `hand`, noise seeded from `seed` (frame `k` uses `seed + k`).
 pub fn simulated_rig(
@@ -346,6 +384,49 @@ pub fn simulated_rig(
 mod tests {
     use super::*;
     use crate::mesh::topology::{is_watertight, signed_volume};
+
+    #[test]
+    fn the_truth_reproduces_the_configured_errors() {
+        let nominal = Isometry3::from_parts(
+            Translation3::new(0.6, -0.1, 1.2),
+            UnitQuaternion::from_euler_angles(PI, 0.1, -0.4),
+        );
+        let rig = TargetRig::standard();
+        let exact = SimTruth::exact(nominal, rig);
+        let (dp, dr) = exact.camera_error_from(&nominal);
+        assert!(dp == 0.0 && dr < 1e-12, "{dp} {dr}");
+        let zero = SimTruth::with_errors(&nominal, rig, &Pose::identity(), &Vector3::zeros());
+        assert_eq!(zero, exact);
+
+        // 15 mm and 2° about an oblique axis; the sphere 7 mm off.
+        let axis = Vector3::new(1.0, -2.0, 0.5).normalize();
+        let camera_error = Isometry3::from_parts(
+            Translation3::new(0.010, -0.005, 0.010),
+            UnitQuaternion::from_scaled_axis(axis * 2f64.to_radians()),
+        );
+        let target_error = Vector3::new(0.003, -0.004, 0.005);
+        let truth = SimTruth::with_errors(&nominal, rig, &camera_error, &target_error);
+        let (dp, dr) = truth.camera_error_from(&nominal);
+        assert!((dp - 0.015).abs() < 1e-12, "{dp}");
+        assert!((dr.to_degrees() - 2.0).abs() < 1e-9, "{}", dr.to_degrees());
+        // The error is in the base frame: true = error's rotation * nominal.
+        let turn = truth.base_from_camera.rotation * nominal.rotation.inverse();
+        assert!(turn.angle_to(&camera_error.rotation) < 1e-12);
+        assert!(
+            (truth.base_from_camera.translation.vector
+                - nominal.translation.vector
+                - camera_error.translation.vector)
+                .norm()
+                < 1e-15
+        );
+        assert!(
+            (truth.rig.flange_from_centre_m - rig.flange_from_centre_m - target_error).norm()
+                < 1e-15
+        );
+        assert_eq!(truth.rig.radius_m, rig.radius_m);
+        assert_eq!(truth.rig.stalk_base_m, rig.stalk_base_m);
+        assert_eq!(truth.rig.stalk_radius_m, rig.stalk_radius_m);
+    }
 
     #[test]
     fn primitive_meshes_are_closed_with_the_right_volume() {

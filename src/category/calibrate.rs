@@ -36,13 +36,8 @@ impl Spread {
         if v.is_empty() {
             return None;
         }
-        v.sort_by(f64::total_cmp);
+        let median = crate::stats::median(&mut v);
         let n = v.len();
-        let median = if n % 2 == 1 {
-            v[n / 2]
-        } else {
-            0.5 * (v[n / 2 - 1] + v[n / 2])
-        };
         Some(Spread {
             count: n,
             min: v[0],

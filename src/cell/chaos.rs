@@ -792,8 +792,7 @@ mod tests {
 
     #[test]
     fn panics_are_counted_in_every_processs_standard_error() {
-        let dir = std::env::temp_dir().join(format!("graspcell-chaos-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("chaos-panics").unwrap();
         std::fs::write(
             dir.join("cell-plan.log"),
             "ok\nthread 'main' panicked at src/x.rs:1:2:\nboom\n",
@@ -801,7 +800,6 @@ mod tests {
         .unwrap();
         std::fs::write(dir.join("cell-log.log"), "fine\n").unwrap();
         let (n, first) = panics_in(&dir);
-        std::fs::remove_dir_all(&dir).unwrap();
         assert_eq!(n, 1);
         assert!(first
             .unwrap()

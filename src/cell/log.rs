@@ -172,37 +172,6 @@ fn camera_note(fault: CameraFault) -> String {
     format!("camera: {what}")
 }
 
-/// The ipc cause of a trial log cause.
-fn ipc_cause(cause: Option<FailureCause>) -> IpcCause {
-    match cause {
-        None => IpcCause::None,
-        Some(FailureCause::Reachability) => IpcCause::Reachability,
-        Some(FailureCause::Registration) => IpcCause::RegistrationFailure,
-        Some(FailureCause::ShapeDissimilarity) => IpcCause::ShapeDissimilarity,
-        Some(FailureCause::Execution) => IpcCause::Execution,
-        Some(FailureCause::Other) => IpcCause::Other,
-    }
-}
-
-fn ipc_grade(grade: Grade) -> IpcGrade {
-    match grade {
-        Grade::Success => IpcGrade::Success,
-        Grade::Partial => IpcGrade::Partial,
-        Grade::Failure => IpcGrade::Failure,
-    }
-}
-
-/// The trial log's cause of a plan's failure.
-pub fn plan_cause(cause: IpcCause) -> FailureCause {
-    match cause {
-        IpcCause::Reachability => FailureCause::Reachability,
-        IpcCause::RegistrationFailure => FailureCause::Registration,
-        IpcCause::ShapeDissimilarity => FailureCause::ShapeDissimilarity,
-        IpcCause::Execution | IpcCause::HardwareFault => FailureCause::Execution,
-        _ => FailureCause::Other,
-    }
-}
-
 /// The fits as JSON for the trial log.
 fn fits_json(fits: Option<&Fits>) -> serde_json::Value {
     let Some(fits) = fits else {
@@ -290,7 +259,7 @@ impl Logger {
                 _ => "the planner failed",
             };
             return Ok(Attempt::NotPlanned {
-                cause: plan_cause(failure),
+                cause: failure.into(),
                 detail: detail.to_string(),
             });
         }
@@ -547,12 +516,12 @@ impl Logger {
             Ending::StageDied(_) => IpcCause::StageDied,
             Ending::TimedOut(_) => IpcCause::Timeout,
             Ending::Camera(_) => IpcCause::Camera,
-            Ending::Reported => ipc_cause(grading.cause),
+            Ending::Reported => grading.cause.into(),
         };
         let result = TrialResult::new(
             trial_id,
             monotonic_now_ns(),
-            ipc_grade(grading.grade),
+            grading.grade.into(),
             cause,
             timings,
         );
@@ -939,8 +908,7 @@ mod tests {
     /// A killed log stage's successor finds the trials it was following.
     #[test]
     fn followed_trials_are_journaled_until_recorded() {
-        let dir = std::env::temp_dir().join(format!("graspcell-journal-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        let dir = crate::fsio::TempDir::new("journal").unwrap();
         let journal = journal_dir(&dir.join("trials.sqlite"));
         assert!(journal.ends_with("trials.sqlite.inflight"));
         let request = TrialRequest::new(41, 7, "mug", "handle", "laplace")
@@ -959,17 +927,10 @@ mod tests {
         );
         unjournal(&journal, 41);
         assert!(journaled(&journal).is_empty());
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
-    fn causes_map_both_ways() {
-        for cause in FailureCause::ALL {
-            let ipc = ipc_cause(Some(cause));
-            assert_eq!(plan_cause(ipc), cause, "{cause:?}");
-        }
-        assert_eq!(ipc_cause(None), IpcCause::None);
-        assert_eq!(ipc_grade(Grade::Partial), IpcGrade::Partial);
+    fn no_fits_have_no_best_fit() {
         assert!(best_fit(None).is_none());
     }
 

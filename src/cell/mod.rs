@@ -19,6 +19,8 @@
 //! - [`harness`]: child processes, supervision (restart on exit), trials.
 //! - [`setup`]: what the simulated world holds for one trial (object, placement,
 //!   seeds), written by the harness and read by the simulated camera and observer.
+//! - [`campaign`]: which trials a campaign runs (objects, placements, tasks and
+//!   methods, paired for the sign tests) and its ids.
 //!
 //! Every stage blocks on iceoryx2 events (never spins), notices a missing or dead
 //! peer, cleans the stale resources of dead nodes at start ([`crate::ipc::Stage`]),
@@ -26,6 +28,7 @@
 //! speaks the systemd notify protocol ([`notify`]) when `NOTIFY_SOCKET` is set.
 
 pub mod camera;
+pub mod campaign;
 pub mod chaos;
 pub mod execute;
 pub mod harness;
@@ -157,6 +160,18 @@ pub struct StageArgs {
 }
 
 impl StageArgs {
+    /// Options naming `domain` (its instance, root and prefix), with `config` and
+    /// `run_dir`.
+    pub fn in_domain(config: &Path, domain: &Domain, run_dir: &Path) -> StageArgs {
+        StageArgs {
+            config: config.to_path_buf(),
+            instance: domain.services().instance().to_string(),
+            ipc_root: Some(domain.root()),
+            ipc_prefix: domain.prefix(),
+            run_dir: run_dir.to_path_buf(),
+        }
+    }
+
     /// The IPC domain these options name.
     pub fn domain(&self) -> Result<Domain, CellError> {
         let root = match &self.ipc_root {

@@ -90,8 +90,7 @@ mod tests {
 
     #[test]
     fn datagrams_reach_a_notify_socket() {
-        let dir = std::env::temp_dir().join(format!("gc-notify-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("notify").unwrap();
         let path = dir.join("notify.sock");
         let _ = std::fs::remove_file(&path);
         let server = UnixDatagram::bind(&path).unwrap();
@@ -103,6 +102,5 @@ mod tests {
         let n = server.recv(&mut buf).unwrap();
         assert_eq!(&buf[..n], b"READY=1\nSTATUS=up");
         assert!(!notify("READY=1").unwrap());
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -287,7 +287,7 @@ mod tests {
 
     #[test]
     fn setup_files_round_trip_and_bad_ones_are_named() {
-        let dir = std::env::temp_dir().join(format!("gc-setup-{}", std::process::id()));
+        let dir = crate::fsio::TempDir::new("setup").unwrap();
         let config = CellConfig::load(Path::new("robot/cell.toml")).unwrap();
         let setup = TrialSetup {
             trial_id: 12,
@@ -317,13 +317,11 @@ mod tests {
             err.contains("12.json") && err.contains("missing field"),
             "{err}"
         );
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
     fn setups_carry_the_object_source_and_the_lab_draw() {
-        let dir = std::env::temp_dir().join(format!("gc-setup-src-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("setup-src").unwrap();
         let config = CellConfig::load(Path::new("robot/cell.toml")).unwrap();
         let db = crate::category::CategoryDb::load(Path::new("db/mug")).unwrap();
         let (object, source) = novel_object_in(Family::HeldApart, Category::Mug, 3, 0, &db);
@@ -380,6 +378,5 @@ mod tests {
         std::fs::write(TrialSetup::path(&dir, 22), old).unwrap();
         let old = TrialSetup::read(&dir, 22).unwrap().unwrap();
         assert_eq!((old.source, old.lab), (ObjectSource::Training, None));
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

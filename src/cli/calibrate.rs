@@ -9,21 +9,21 @@ use crate::calib::{
     solve, Conditioning, HandEyeResult, Method, ResidualStats, Sample, SampleFile, SampleResidual,
     Solution, SolveOptions, Weights,
 };
+use crate::clock::{format_utc, unix_ms_now, UtcPrecision};
 use crate::config::CellConfig;
-use crate::geometry::{matrix_rows, parse_numbers, pose_error, pose_from_params, PoseJson};
+use crate::geometry::{matrix_rows, parse_numbers, pose_from_params, PoseJson};
 use crate::robot::Robot;
 use crate::sim::camera::Intrinsics;
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use nalgebra::Vector3;
-use nalgebra::{Isometry3, Translation3};
+use nalgebra::{Isometry3, Vector3};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
-use std::time::{Instant, SystemTime, UNIX_EPOCH};
+use std::time::Instant;
 
 /// The calibration subcommands.
 #[derive(Debug, Subcommand)]
@@ -171,34 +171,27 @@ fn collect_command(config_path: &Path, args: CollectArgs) -> anyhow::Result<Exit
         ..TargetRig::standard()
     };
     let nominal = config.base_from_camera();
-    let true_camera = match &args.sim_camera_error {
+    let camera_error = match &args.sim_camera_error {
         Some(text) => {
             let e = parse_numbers(text, 6, "--sim-camera-error x,y,z,roll,pitch,yaw")?;
-            let e = pose_from_params(&[e[0], e[1], e[2], e[3], e[4], e[5]]);
-            Isometry3::from_parts(
-                Translation3::from(nominal.translation.vector + e.translation.vector),
-                e.rotation * nominal.rotation,
-            )
+            pose_from_params(&[e[0], e[1], e[2], e[3], e[4], e[5]])
         }
-        None => nominal,
+        None => Isometry3::identity(),
     };
-    let true_rig = match &args.sim_target_error {
+    let target_error = match &args.sim_target_error {
         Some(text) => {
             let e = parse_numbers(text, 3, "--sim-target-error x,y,z")?;
-            rig.with_centre(rig.flange_from_centre_m + Vector3::new(e[0], e[1], e[2]))
+            Vector3::new(e[0], e[1], e[2])
         }
-        None => rig,
+        None => Vector3::zeros(),
     };
+    let truth = SimTruth::with_errors(&nominal, rig, &camera_error, &target_error);
     let robot = Arc::new(Robot::load(&config)?);
     let prior = CameraPrior {
         intrinsics: Intrinsics::from(&config.camera),
         base_from_camera: nominal,
     };
     let options = CollectOptions::new(args.poses, rig.radius_m, args.seed);
-    let truth = SimTruth {
-        base_from_camera: true_camera,
-        rig: true_rig,
-    };
     let (mut arm, mut camera) = simulated_rig(
         &config,
         Arc::clone(&robot),
@@ -260,7 +253,7 @@ fn collect_command(config_path: &Path, args: CollectArgs) -> anyhow::Result<Exit
     };
     file.save(&out)?;
     let samples_file = out.display().to_string();
-    let (dp, dr) = pose_error(&true_camera, &nominal);
+    let (dp, dr) = truth.camera_error_from(&nominal);
     let report = CollectReport {
         next: format!("cell calibrate solve --samples {samples_file} --method points"),
         samples_file,
@@ -289,10 +282,10 @@ fn collect_command(config_path: &Path, args: CollectArgs) -> anyhow::Result<Exit
             .collect(),
         simulation: SimulationReport {
             nominal_base_from_camera: PoseJson::from(&nominal),
-            true_base_from_camera: PoseJson::from(&true_camera),
+            true_base_from_camera: PoseJson::from(&truth.base_from_camera),
             true_from_nominal_mm: dp * 1e3,
             true_from_nominal_deg: dr.to_degrees(),
-            true_target_in_flange_m: true_rig.flange_from_centre_m.into(),
+            true_target_in_flange_m: truth.rig.flange_from_centre_m.into(),
         },
         plan_s,
         capture_s,
@@ -584,45 +577,5 @@ fn human_report(r: &SolveReport) -> String {
 
 /// The current UTC time as RFC 3339 (`2025-01-31T10:00:00Z`).
 fn utc_now_rfc3339() -> String {
-    let secs = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0);
-    rfc3339_utc(secs)
-}
-
-/// Seconds since the Unix epoch as RFC 3339 UTC (proleptic Gregorian calendar).
-fn rfc3339_utc(unix_s: u64) -> String {
-    let days = (unix_s / 86_400) as i64;
-    let rem = unix_s % 86_400;
-    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1_460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!(
-        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60
-    )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn rfc3339_matches_known_dates() {
-        assert_eq!(rfc3339_utc(0), "1970-01-01T00:00:00Z");
-        // 2000-02-29 (leap day) 12:34:56 UTC.
-        assert_eq!(rfc3339_utc(951_827_696), "2000-02-29T12:34:56Z");
-        // 2024-12-31T23:59:59Z.
-        assert_eq!(rfc3339_utc(1_735_689_599), "2024-12-31T23:59:59Z");
-    }
+    format_utc(unix_ms_now(), UtcPrecision::Seconds)
 }

@@ -2,7 +2,6 @@
 //! backend into a fakenect recording). Their benchmarks are `bench::render` and
 //! `bench::camera`.
 
-use super::objects::write_atomically;
 use crate::cell::camera::{CameraBackend, Snapshot};
 use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
@@ -279,7 +278,8 @@ fn write_depth_png(path: &Path, frame: &DepthFrame) -> anyhow::Result<()> {
         let mut writer = encoder.write_header()?;
         writer.write_image_data(&rgb)?;
     }
-    write_atomically(path, &bytes)
+    crate::fsio::write_atomically(path, &bytes)
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// What `cell camera record` reports.

@@ -1,14 +1,17 @@
 //! `cell demo`, `cell run`, `cell trial` and `cell campaign`: the cell as processes.
 
 use super::emit;
+use crate::cell::campaign::{graded_trials, CampaignSpec, NovelObject, PlannedTrial, TaskReport};
 use crate::cell::harness::{novel_object, placement_rng, random_placement, Cell, HarnessOptions};
 use crate::cell::plan::{Databases, METHODS};
-use crate::cell::setup::{novel_object_in, ObjectSource, TrialSetup};
+use crate::cell::setup::{ObjectSource, TrialSetup};
 use crate::cell::{span_ms, stop_requested, StageArgs, SYSTEM_IPC_PREFIX};
 use crate::config::CellConfig;
+use crate::fsio::TempDir;
 use crate::ipc::{monotonic_now_ns, Domain, Stage, TrialRequest, TrialResult};
 use crate::mesh::procedural::Category;
 use crate::sim::lab::{LabDraw, LabErrors};
+use crate::stats::finite_median;
 use crate::trial::TrialLog;
 use anyhow::Context;
 use clap::Args;
@@ -73,11 +76,9 @@ pub struct WorldArgs {
     pub lab: super::eval::LabArgs,
 }
 
-/// The novel objects of a demo or campaign, in order: each with its source and
-/// the height (m) of its lowest point in its own frame (placements stand it on the
-/// table).
+/// The novel objects of a demo or campaign, in order, and the lab's errors.
 struct World {
-    objects: Vec<(crate::trial::ObjectRef, ObjectSource, f64)>,
+    objects: Vec<NovelObject>,
     lab: LabErrors,
 }
 
@@ -108,55 +109,17 @@ impl World {
                     "{}: no object of category {category}",
                     dir.join(crate::eval::objects::MANIFEST_FILE).display()
                 );
-                mine.into_iter()
-                    .map(|o| {
-                        let min_z = o
-                            .mesh
-                            .vertices
-                            .iter()
-                            .map(|v| v.z)
-                            .fold(f64::INFINITY, f64::min);
-                        (
-                            crate::trial::ObjectRef {
-                                name: o.name,
-                                seed: None,
-                            },
-                            ObjectSource::File {
-                                path: o.path,
-                                scale: o.scale,
-                            },
-                            min_z,
-                        )
-                    })
-                    .collect()
+                mine.into_iter().map(NovelObject::from_user).collect()
             }
-            None => (0..count as u64)
-                .map(|i| {
-                    let (object, source) =
-                        novel_object_in(args.family.into(), category, seed, i, db);
-                    (object, source, 0.0)
-                })
-                .collect(),
+            None => NovelObject::procedural(args.family.into(), category, seed, count, db),
         };
         Ok(World { objects, lab })
     }
 
     /// Object `i` (cycling through the user's objects).
-    fn object(&self, i: usize) -> &(crate::trial::ObjectRef, ObjectSource, f64) {
+    fn object(&self, i: usize) -> &NovelObject {
         &self.objects[i % self.objects.len()]
     }
-
-    /// The lab's draw of a trial: the campaign's hand–eye error and the trial's
-    /// joint errors; `None` for an exact cell.
-    fn draw(&self, campaign_seed: u64, trial_seed: u64) -> Option<LabDraw> {
-        (self.lab != LabErrors::NONE).then(|| self.lab.draw(campaign_seed, trial_seed))
-    }
-}
-
-/// `placement` with the object's lowest point (`min_z` in its frame) on the table.
-fn on_table(mut placement: crate::trial::Placement, min_z: f64) -> crate::trial::Placement {
-    placement.base_from_object.xyz[2] -= min_z;
-    placement
 }
 
 /// Options of `cell demo`.
@@ -419,20 +382,6 @@ pub struct Summary {
     pub median_plan_ms: Option<f64>,
 }
 
-fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
-    let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) / 2.0
-    })
-}
-
 impl Summary {
     fn of(lines: &[TrialLine]) -> Summary {
         let count = |g: &str| lines.iter().filter(|l| l.grade == g).count();
@@ -442,11 +391,11 @@ impl Summary {
             partial: count("partial"),
             failure: count("failure"),
             lost: count("lost"),
-            median_snapshot_to_grasp_command_ms: median(
+            median_snapshot_to_grasp_command_ms: finite_median(
                 lines.iter().map(|l| l.snapshot_to_grasp_command_ms),
             ),
-            median_perceive_ms: median(lines.iter().map(|l| l.perceive_ms)),
-            median_plan_ms: median(lines.iter().map(|l| l.plan_ms)),
+            median_perceive_ms: finite_median(lines.iter().map(|l| l.perceive_ms)),
+            median_plan_ms: finite_median(lines.iter().map(|l| l.plan_ms)),
         }
     }
 
@@ -493,6 +442,22 @@ pub(super) fn progress(total: u64, json: bool) -> ProgressBar {
     bar
 }
 
+/// The run directory asked for, or (without `--run-dir`) a temporary one, removed
+/// when the returned guard drops.
+pub(super) fn run_dir_or_temp(
+    asked: Option<&Path>,
+    tag: &str,
+) -> anyhow::Result<(PathBuf, Option<TempDir>)> {
+    Ok(match asked {
+        Some(dir) => (dir.to_path_buf(), None),
+        None => {
+            let temp =
+                TempDir::new(tag).with_context(|| format!("creating the {tag}'s run directory"))?;
+            (temp.to_path_buf(), Some(temp))
+        }
+    })
+}
+
 /// A fresh isolated domain and run directory for one demo or campaign.
 fn private_domain(tag: &str) -> anyhow::Result<crate::ipc::domain::TemporaryDomain> {
     Ok(Domain::temporary(tag)?)
@@ -510,18 +475,9 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
     if !args.json {
         eprintln!("{}", world.lab.text());
     }
-    let temp_run = args.run_dir.is_none();
-    let run_dir = args.run_dir.clone().unwrap_or_else(|| {
-        std::env::temp_dir().join(format!("graspcell-demo-{}", std::process::id()))
-    });
+    let (run_dir, _temp_run) = run_dir_or_temp(args.run_dir.as_deref(), "demo")?;
     let domain = private_domain("demo")?;
-    let stage = StageArgs {
-        config: config_path.to_path_buf(),
-        instance: domain.services().instance().to_string(),
-        ipc_root: Some(domain.root()),
-        ipc_prefix: domain.prefix(),
-        run_dir: run_dir.clone(),
-    };
+    let stage = StageArgs::in_domain(config_path, &domain, &run_dir);
     let mut options = HarnessOptions::demo(stage)?;
     options.db_dir = args.kind.db_dir.clone();
     options.hold_s = args.hold_s;
@@ -536,19 +492,19 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
             break;
         }
         cell.supervise()?;
-        let (object, source, min_z) = world.object(i).clone();
+        let novel = world.object(i);
         let mut rng = placement_rng(args.seed, i as u64);
         let trial_seed = args.seed.wrapping_mul(1000).wrapping_add(i as u64);
         let setup = TrialSetup {
             trial_id: cell.new_trial_id(),
             category,
-            object,
-            placement: on_table(random_placement(&config, &mut rng, 0), min_z),
+            object: novel.object.clone(),
+            placement: novel.on_table(random_placement(&config, &mut rng, 0)),
             campaign_id: None,
             noise_seed: trial_seed,
             perception_seed: trial_seed,
-            source,
-            lab: world.draw(args.seed, trial_seed),
+            source: novel.source.clone(),
+            lab: world.lab.trial_draw(args.seed, trial_seed),
         };
         bar.set_message(setup.object.name.clone());
         let result = cell.run_trial(
@@ -570,9 +526,6 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
     let leftover = cell.stop()?;
     let removed = domain.remove().context("removing the demo's IPC domain")?;
     tracing::info!(removed, "demo domain removed");
-    if temp_run {
-        let _ = std::fs::remove_dir_all(&run_dir);
-    }
     let summary = Summary::of(&lines);
     #[derive(Serialize)]
     struct DemoOutput {
@@ -622,95 +575,41 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
         );
     }
     let world = World::new(&args.world, category, args.instances, args.seed, &db)?;
-    let objects = if args.world.objects.is_some() {
-        world.objects.len()
-    } else {
-        args.instances
-    };
-    // One campaign per task (each its own Table-2 report and sign tests).
-    let campaign_id = |task: &str| match &args.campaign {
-        Some(c) if tasks.len() == 1 => c.clone(),
-        Some(c) => format!("{c}-{task}"),
-        None => format!(
-            "{}-{task}-seed{}{}",
-            args.kind.category,
-            args.seed,
-            if args.paper { "-paper" } else { "" }
-        ),
+    let spec = CampaignSpec {
+        category: args.kind.category.clone(),
+        tasks,
+        objects: world.objects,
+        placements: args.placements,
+        methods: args.methods.clone(),
+        campaign: args.campaign.clone(),
+        seed: args.seed,
+        paper: args.paper,
+        lab: world.lab,
     };
     // Resume: trials of these campaigns already graded are not run again.
-    let mut done: HashSet<(String, String, u32, String)> = HashSet::new();
-    if args.log.exists() {
-        let log = TrialLog::open_existing(&args.log)?;
-        for t in log.trials()? {
-            if let (Some(c), Some(_)) = (&t.trial.campaign_id, &t.grading) {
-                done.insert((
-                    c.clone(),
-                    t.trial.object.name.clone(),
-                    t.trial.placement.index,
-                    t.trial.method.clone(),
-                ));
-            }
-        }
-    }
-    let mut plan = Vec::new();
-    for task in &tasks {
-        let id = campaign_id(task);
-        for o in 0..objects {
-            let (object, source, min_z) = world.object(o).clone();
-            let mut rng = placement_rng(args.seed, o as u64);
-            for p in 0..args.placements {
-                let placement = on_table(random_placement(&config, &mut rng, p), min_z);
-                for method in &args.methods {
-                    if !done.contains(&(id.clone(), object.name.clone(), p, method.clone())) {
-                        // Same noise, perception and joint errors for every method
-                        // of a placement.
-                        let seed =
-                            args.seed.wrapping_mul(1_000_003) ^ ((o as u64) << 16 | p as u64);
-                        plan.push(CampaignTrial {
-                            campaign_id: id.clone(),
-                            task: task.clone(),
-                            object: object.clone(),
-                            source: source.clone(),
-                            placement,
-                            method: method.clone(),
-                            seed,
-                            lab: world.draw(args.seed, seed),
-                        });
-                    }
-                }
-            }
-        }
-    }
-    let total = tasks.len() * objects * args.placements as usize * args.methods.len();
+    let graded = if args.log.exists() {
+        graded_trials(&TrialLog::open_existing(&args.log)?.trials()?)
+    } else {
+        HashSet::new()
+    };
+    let plan = spec.plan(&config, &graded);
+    let total = spec.total();
     eprintln!(
         "campaigns {}: {} of {total} trials to run ({} already graded in {}); {}",
-        tasks
-            .iter()
-            .map(|t| campaign_id(t))
-            .collect::<Vec<_>>()
-            .join(", "),
+        spec.campaign_ids().join(", "),
         plan.len(),
         total - plan.len(),
         args.log.display(),
-        world.lab.text()
+        spec.lab.text()
     );
     let domain = private_domain("campaign")?;
-    let stage = StageArgs {
-        config: config_path.to_path_buf(),
-        instance: domain.services().instance().to_string(),
-        ipc_root: Some(domain.root()),
-        ipc_prefix: domain.prefix(),
-        run_dir: args.run_dir.clone(),
-    };
+    let stage = StageArgs::in_domain(config_path, &domain, &args.run_dir);
     let mut options = HarnessOptions::demo(stage)?;
     options.db_dir = args.kind.db_dir.clone();
     options.hold_s = args.hold_s;
     options.observer = args.observer;
     options.log_path = args.log.clone();
-    if args.paper {
-        options.protocol = crate::ipc::Protocol::PaperRobot;
-    }
+    options.protocol = spec.protocol();
     crate::cell::install_stop_handler();
     let lines = {
         let mut cell = Cell::start(options, (*domain).clone()).context("starting the cell")?;
@@ -725,42 +624,7 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     let summary = Summary::of(&lines);
     let log = TrialLog::open_existing(&args.log)?;
     let trials = log.trials()?;
-    // Both observers' verdicts of a campaign's trials, side by side.
-    let agreement = |id: &str| {
-        let mut verdicts = crate::sim::observer::Agreement::default();
-        for t in &trials {
-            if t.trial.campaign_id.as_deref() == Some(id) {
-                if let Some((physics, statics)) = t
-                    .trial
-                    .outcome
-                    .as_ref()
-                    .and_then(crate::cell::log::verdict_grades)
-                {
-                    verdicts.add(physics, statics);
-                }
-            }
-        }
-        verdicts
-    };
-    #[derive(Serialize)]
-    struct TaskReport {
-        task: String,
-        campaign_id: String,
-        report: crate::trial::Report,
-        verdicts: crate::sim::observer::Agreement,
-    }
-    let reports: Vec<TaskReport> = tasks
-        .iter()
-        .map(|task| {
-            let id = campaign_id(task);
-            TaskReport {
-                task: task.clone(),
-                report: crate::trial::Report::from_trials(&trials, Some(&id)),
-                verdicts: agreement(&id),
-                campaign_id: id,
-            }
-        })
-        .collect();
+    let reports = spec.reports(&trials);
     #[derive(Serialize)]
     struct CampaignOutput {
         log: PathBuf,
@@ -774,8 +638,8 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     let out = CampaignOutput {
         log: args.log.clone(),
         observer: args.observer.mode().unwrap_or_default(),
-        lab: world.lab,
-        by_task: TaskRow::of(&lines, &tasks, &args.methods),
+        lab: spec.lab,
+        by_task: TaskRow::of(&lines, &spec.tasks, &spec.methods),
         run: lines,
         summary,
         tasks: reports,
@@ -796,18 +660,6 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
         text
     })?;
     Ok(ExitCode::SUCCESS)
-}
-
-/// One trial a campaign plans to run.
-struct CampaignTrial {
-    campaign_id: String,
-    task: String,
-    object: crate::trial::ObjectRef,
-    source: ObjectSource,
-    placement: crate::trial::Placement,
-    method: String,
-    seed: u64,
-    lab: Option<LabDraw>,
 }
 
 /// Grades of one task and method over the trials run now.
@@ -865,7 +717,7 @@ fn run_campaign_trials(
     cell: &mut Cell,
     args: &CampaignArgs,
     category: Category,
-    plan: &[CampaignTrial],
+    plan: &[PlannedTrial],
 ) -> anyhow::Result<Vec<TrialLine>> {
     let bar = progress(plan.len() as u64, args.json);
     let mut lines = Vec::new();
@@ -874,17 +726,7 @@ fn run_campaign_trials(
             break;
         }
         cell.supervise()?;
-        let setup = TrialSetup {
-            trial_id: cell.new_trial_id(),
-            category,
-            object: t.object.clone(),
-            placement: t.placement,
-            campaign_id: Some(t.campaign_id.clone()),
-            noise_seed: t.seed,
-            perception_seed: t.seed,
-            source: t.source.clone(),
-            lab: t.lab,
-        };
+        let setup = t.setup(cell.new_trial_id(), category);
         bar.set_message(format!(
             "{} #{} {} {}",
             t.object.name, t.placement.index, t.task, t.method

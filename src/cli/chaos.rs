@@ -1,6 +1,6 @@
 //! `cell chaos`: the fault campaign (see [`crate::cell::chaos`]).
 
-use super::cell::{check_method, progress, TrialKind};
+use super::cell::{check_method, progress, run_dir_or_temp, TrialKind};
 use super::emit;
 use crate::cell::chaos::{ChaosOptions, ChaosSummary, ChaosTrial, FaultKind};
 use crate::cell::harness::HarnessOptions;
@@ -59,18 +59,9 @@ pub fn run(config_path: &Path, args: ChaosArgs) -> anyhow::Result<ExitCode> {
     check_method(&args.method)?;
     anyhow::ensure!(args.trials > 0, "--trials must be at least 1");
     let db = crate::cell::load_category(&args.kind.db_dir, &args.kind.category)?;
-    let temp_run = args.run_dir.is_none();
-    let run_dir = args.run_dir.clone().unwrap_or_else(|| {
-        std::env::temp_dir().join(format!("graspcell-chaos-{}", std::process::id()))
-    });
+    let (run_dir, _temp_run) = run_dir_or_temp(args.run_dir.as_deref(), "chaos")?;
     let domain = Domain::temporary("chaos")?;
-    let stage = StageArgs {
-        config: config_path.to_path_buf(),
-        instance: domain.services().instance().to_string(),
-        ipc_root: Some(domain.root()),
-        ipc_prefix: domain.prefix(),
-        run_dir: run_dir.clone(),
-    };
+    let stage = StageArgs::in_domain(config_path, &domain, &run_dir);
     let mut harness = HarnessOptions::demo(stage)?;
     harness.db_dir = args.kind.db_dir.clone();
     harness.hold_s = 0.1;
@@ -114,9 +105,6 @@ pub fn run(config_path: &Path, args: ChaosArgs) -> anyhow::Result<ExitCode> {
     }
     let out = ChaosOutput { trials, summary };
     emit(args.json, &out, |o| o.summary.text())?;
-    if temp_run {
-        let _ = std::fs::remove_dir_all(&run_dir);
-    }
     Ok(if clean {
         ExitCode::SUCCESS
     } else {

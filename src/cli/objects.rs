@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 /// Object model commands.
@@ -105,10 +105,11 @@ fn generate_set(args: GenerateArgs) -> anyhow::Result<ExitCode> {
         instances,
     };
     let params_path = args.out.join("params.json");
-    write_atomically(
+    crate::fsio::write_atomically(
         &params_path,
         serde_json::to_string_pretty(&listing)?.as_bytes(),
-    )?;
+    )
+    .with_context(|| format!("cannot write {}", params_path.display()))?;
     super::emit(args.json, &listing, |l| {
         let mut text = format!(
             "wrote {} {} instances (seed {}) and params.json to {}\n",
@@ -127,10 +128,4 @@ fn generate_set(args: GenerateArgs) -> anyhow::Result<ExitCode> {
         text
     })?;
     Ok(ExitCode::SUCCESS)
-}
-
-/// Writes `bytes` to `path` atomically.
-pub(super) fn write_atomically(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    crate::fsio::write_atomically(path, bytes)
-        .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -237,7 +237,8 @@ pub fn log(which: LogCommand) -> anyhow::Result<ExitCode> {
             let csv = log.export_csv()?;
             match &args.out {
                 Some(path) => {
-                    crate::trial::write_atomically(path, csv.as_bytes())?;
+                    crate::fsio::write_atomically(path, csv.as_bytes())
+                        .with_context(|| format!("cannot write {}", path.display()))?;
                     eprintln!("wrote {} trials to {}", log.trial_count()?, path.display());
                 }
                 None => super::write_stdout(&csv)?,
@@ -488,7 +489,9 @@ pub(crate) fn write_html_report(
                 let name = format!("{}.png", t.id);
                 match std::fs::read(&path) {
                     Ok(bytes) => {
-                        crate::trial::write_atomically(&pictures_dir.join(&name), &bytes)?;
+                        let copy = pictures_dir.join(&name);
+                        crate::fsio::write_atomically(&copy, &bytes)
+                            .with_context(|| format!("cannot write {}", copy.display()))?;
                         Some(format!("pictures/{name}"))
                     }
                     Err(e) => {
@@ -521,6 +524,7 @@ pub(crate) fn write_html_report(
         &views,
     );
     let index = dir.join("index.html");
-    crate::trial::write_atomically(&index, html.as_bytes())?;
+    crate::fsio::write_atomically(&index, html.as_bytes())
+        .with_context(|| format!("cannot write {}", index.display()))?;
     Ok(index)
 }

@@ -172,36 +172,6 @@ pub(crate) mod test_support {
     use super::PointCloud;
     use crate::mesh::TriMesh;
     use nalgebra::{Point3, Vector3};
-    use std::path::PathBuf;
-    use std::sync::atomic::{AtomicU64, Ordering};
-
-    /// A unique, self-removing temporary directory for tests that write files.
-    pub(crate) struct TestDir(pub PathBuf);
-
-    impl TestDir {
-        /// A new empty directory named after `tag`, the process and a counter.
-        pub fn new(tag: &str) -> TestDir {
-            static COUNTER: AtomicU64 = AtomicU64::new(0);
-            let dir = std::env::temp_dir().join(format!(
-                "graspcell-{tag}-{}-{}",
-                std::process::id(),
-                COUNTER.fetch_add(1, Ordering::Relaxed)
-            ));
-            std::fs::create_dir_all(&dir).unwrap();
-            TestDir(dir)
-        }
-
-        /// A path inside the directory.
-        pub fn join(&self, name: &str) -> PathBuf {
-            self.0.join(name)
-        }
-    }
-
-    impl Drop for TestDir {
-        fn drop(&mut self) {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
 
     /// A unit cube's 8 corners and 12 outward triangles, built by hand.
     pub(crate) fn cube() -> TriMesh {
@@ -285,6 +255,7 @@ pub(crate) mod test_support {
 mod tests {
     use super::test_support::*;
     use super::*;
+    use crate::fsio::TempDir;
 
     #[test]
     fn extension_picks_the_format() {
@@ -305,7 +276,7 @@ mod tests {
 
     #[test]
     fn every_format_and_encoding_round_trips_through_files() {
-        let dir = TestDir::new("cloud-io");
+        let dir = TempDir::new("cloud-io").unwrap();
         let mut cloud = organised();
         // Give the NaN point a payload: binary files must keep it.
         cloud.points[1].x = f32::from_bits(0x7fc0_1234);
@@ -325,7 +296,7 @@ mod tests {
                         }
                     }
                 }
-                let temporary: Vec<_> = std::fs::read_dir(&dir.0)
+                let temporary: Vec<_> = std::fs::read_dir(&*dir)
                     .unwrap()
                     .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
                     .filter(|name| name.contains(".tmp"))
@@ -337,7 +308,7 @@ mod tests {
 
     #[test]
     fn inconsistent_cloud_is_refused_and_nothing_is_written() {
-        let dir = TestDir::new("cloud-invalid");
+        let dir = TempDir::new("cloud-invalid").unwrap();
         let mut cloud = organised();
         cloud.width = 4;
         let path = dir.join("bad.pcd");

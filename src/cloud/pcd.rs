@@ -537,6 +537,7 @@ mod tests {
     use super::*;
     use crate::cloud::io::test_support::*;
     use crate::cloud::io::{read_cloud, write_cloud};
+    use crate::fsio::TempDir;
 
     const HEADER: &str = "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z normal_x normal_y normal_z\nSIZE 4 4 4 4 4 4\nTYPE F F F F F F\nCOUNT 1 1 1 1 1 1\nWIDTH 3\nHEIGHT 2\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 6\n";
 
@@ -604,7 +605,7 @@ mod tests {
 
     #[test]
     fn malformed_and_truncated_pcd_name_file_and_place() {
-        let dir = TestDir::new("cloud-pcd-bad");
+        let dir = TempDir::new("cloud-pcd-bad").unwrap();
         let binary = encode_pcd(&organised(), CloudEncoding::Binary).unwrap();
         let text =
             String::from_utf8(encode_pcd(&organised(), CloudEncoding::Ascii).unwrap()).unwrap();
@@ -641,7 +642,7 @@ mod tests {
 
     #[test]
     fn unorganised_cloud_without_normals_round_trips_in_both_encodings() {
-        let dir = TestDir::new("cloud-pcd");
+        let dir = TempDir::new("cloud-pcd").unwrap();
         let cloud = PointCloud::from_points(vec![
             Point3::new(1.5, -2.0, 0.25),
             Point3::new(1e-3, 7.0, 9.5),

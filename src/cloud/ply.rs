@@ -145,6 +145,7 @@ mod tests {
     use super::*;
     use crate::cloud::io::test_support::*;
     use crate::cloud::io::{read_cloud, write_cloud};
+    use crate::fsio::TempDir;
 
     #[test]
     fn binary_ply_is_bit_exact_and_laid_out_as_specified() {
@@ -183,7 +184,7 @@ mod tests {
 
     #[test]
     fn ascii_ply_round_trips_unorganised_cloud_without_obj_info() {
-        let dir = TestDir::new("cloud-ply");
+        let dir = TempDir::new("cloud-ply").unwrap();
         let cloud =
             PointCloud::from_points(vec![Point3::new(1.0, 2.0, 3.0), Point3::new(0.1, 0.2, 0.3)]);
         let path = dir.join("u.ply");
@@ -198,7 +199,7 @@ mod tests {
 
     #[test]
     fn malformed_and_truncated_ply_clouds_name_file_and_place() {
-        let dir = TestDir::new("cloud-ply-bad");
+        let dir = TempDir::new("cloud-ply-bad").unwrap();
         let good = encode_ply_cloud(&organised(), CloudEncoding::Binary).unwrap();
         let good_text =
             String::from_utf8(encode_ply_cloud(&organised(), CloudEncoding::Ascii).unwrap())

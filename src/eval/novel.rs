@@ -662,7 +662,7 @@ pub fn run_novel(
                     let (attempt, palm) = match planned {
                         Err(failure) => (
                             Attempt::NotPlanned {
-                                cause: crate::cell::log::plan_cause(failure.cause),
+                                cause: failure.cause.into(),
                                 detail: failure.detail,
                             },
                             None,

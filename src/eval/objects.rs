@@ -172,13 +172,12 @@ pub fn load_objects(dir: &Path) -> Result<Vec<UserObject>, ObjectsError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fsio::TempDir;
     use crate::mesh::procedural::generate;
 
     /// A fresh directory with a generated mug mesh (millimetres) and `manifest`.
-    fn fixture(tag: &str, manifest: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("gc-objects-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
+    fn fixture(tag: &str, manifest: &str) -> TempDir {
+        let dir = TempDir::new(&format!("objects-{tag}")).unwrap();
         let (mut mesh, _) = generate(Category::Mug, 3);
         for v in &mut mesh.vertices {
             v.coords *= 1000.0;
@@ -201,7 +200,6 @@ mod tests {
         let (want, _) = generate(Category::Mug, 3);
         let top = |m: &TriMesh| m.vertices.iter().map(|v| v.z).fold(f64::MIN, f64::max);
         assert!((top(&o.mesh) - top(&want)).abs() < 1e-6);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
@@ -242,14 +240,8 @@ mod tests {
             "{e}"
         );
         // No manifest at all.
-        let empty = std::env::temp_dir().join(format!("gc-objects-none-{}", std::process::id()));
-        std::fs::create_dir_all(&empty).unwrap();
+        let empty = TempDir::new("objects-none").unwrap();
         let e = load_objects(&empty).unwrap_err().to_string();
         assert!(e.contains(&manifest(&empty)), "{e}");
-        for tag in ["toml", "field", "missing", "category", "none"] {
-            let _ = std::fs::remove_dir_all(
-                std::env::temp_dir().join(format!("gc-objects-{tag}-{}", std::process::id())),
-            );
-        }
     }
 }

@@ -261,6 +261,69 @@ coded_enum!(
     }
 );
 
+/// The trial log's grade on the wire.
+impl From<crate::trial::Grade> for Grade {
+    fn from(grade: crate::trial::Grade) -> Grade {
+        match grade {
+            crate::trial::Grade::Success => Grade::Success,
+            crate::trial::Grade::Partial => Grade::Partial,
+            crate::trial::Grade::Failure => Grade::Failure,
+        }
+    }
+}
+
+/// A grade from the wire as the trial log's.
+impl From<Grade> for crate::trial::Grade {
+    fn from(grade: Grade) -> crate::trial::Grade {
+        match grade {
+            Grade::Success => crate::trial::Grade::Success,
+            Grade::Partial => crate::trial::Grade::Partial,
+            Grade::Failure => crate::trial::Grade::Failure,
+        }
+    }
+}
+
+/// The trial log's cause on the wire.
+impl From<crate::trial::FailureCause> for FailureCause {
+    fn from(cause: crate::trial::FailureCause) -> FailureCause {
+        match cause {
+            crate::trial::FailureCause::Reachability => FailureCause::Reachability,
+            crate::trial::FailureCause::Registration => FailureCause::RegistrationFailure,
+            crate::trial::FailureCause::ShapeDissimilarity => FailureCause::ShapeDissimilarity,
+            crate::trial::FailureCause::Execution => FailureCause::Execution,
+            crate::trial::FailureCause::Other => FailureCause::Other,
+        }
+    }
+}
+
+/// The trial log's cause of a grading on the wire: no cause is [`FailureCause::None`].
+impl From<Option<crate::trial::FailureCause>> for FailureCause {
+    fn from(cause: Option<crate::trial::FailureCause>) -> FailureCause {
+        cause.map_or(FailureCause::None, FailureCause::from)
+    }
+}
+
+/// A cause from the wire (a plan's failure) as the trial log's: a hardware fault is an
+/// execution failure; the cell's own causes (stage died, timeout, camera) and
+/// [`FailureCause::None`] are `Other`.
+impl From<FailureCause> for crate::trial::FailureCause {
+    fn from(cause: FailureCause) -> crate::trial::FailureCause {
+        match cause {
+            FailureCause::Reachability => crate::trial::FailureCause::Reachability,
+            FailureCause::RegistrationFailure => crate::trial::FailureCause::Registration,
+            FailureCause::ShapeDissimilarity => crate::trial::FailureCause::ShapeDissimilarity,
+            FailureCause::Execution | FailureCause::HardwareFault => {
+                crate::trial::FailureCause::Execution
+            }
+            FailureCause::None
+            | FailureCause::Other
+            | FailureCause::StageDied
+            | FailureCause::Timeout
+            | FailureCause::Camera => crate::trial::FailureCause::Other,
+        }
+    }
+}
+
 coded_enum!(
     /// Why the camera gave no snapshot for a trial.
     CameraFault, "camera fault", {
@@ -1213,6 +1276,39 @@ mod tests {
             Grade::ALL.iter().map(|g| g.score()).collect::<Vec<_>>(),
             [1, 0, -1]
         );
+    }
+
+    #[test]
+    fn grades_and_causes_convert_at_the_wire_boundary() {
+        use crate::trial::{FailureCause as LogCause, Grade as LogGrade};
+        for grade in [LogGrade::Success, LogGrade::Partial, LogGrade::Failure] {
+            assert_eq!(LogGrade::from(Grade::from(grade)), grade);
+        }
+        for cause in LogCause::ALL {
+            assert_eq!(
+                LogCause::from(FailureCause::from(cause)),
+                cause,
+                "{cause:?}"
+            );
+            assert_eq!(FailureCause::from(Some(cause)), FailureCause::from(cause));
+        }
+        assert_eq!(FailureCause::from(None), FailureCause::None);
+        assert_eq!(
+            FailureCause::from(LogCause::Registration),
+            FailureCause::RegistrationFailure
+        );
+        assert_eq!(
+            LogCause::from(FailureCause::HardwareFault),
+            LogCause::Execution
+        );
+        for cell_own in [
+            FailureCause::None,
+            FailureCause::StageDied,
+            FailureCause::Timeout,
+            FailureCause::Camera,
+        ] {
+            assert_eq!(LogCause::from(cell_own), LogCause::Other);
+        }
     }
 
     #[test]

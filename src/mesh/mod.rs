@@ -227,8 +227,7 @@ mod tests {
     #[test]
     fn every_format_loads_through_one_entry_with_scale() {
         let (mug, _) = procedural::generate(procedural::Category::Mug, 3);
-        let dir = std::env::temp_dir().join(format!("graspcell-load-mesh-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("load-mesh").unwrap();
         for format in [MeshFormat::Obj, MeshFormat::Stl, MeshFormat::Ply] {
             let path = dir.join(format!("mug.{}", format.extension()));
             write_mesh(&path, &mug).unwrap();
@@ -250,7 +249,6 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("scale"), "{err}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

@@ -178,11 +178,12 @@ pub fn encode_ply_mesh(mesh: &TriMesh, format: Format) -> Result<Vec<u8>, String
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cloud::io::test_support::{cube, TestDir};
+    use crate::cloud::io::test_support::cube;
+    use crate::fsio::TempDir;
 
     #[test]
     fn ascii_and_binary_round_trip_exactly() {
-        let dir = TestDir::new("mesh-ply");
+        let dir = TempDir::new("mesh-ply").unwrap();
         let mut mesh = cube();
         mesh.vertices[3] = Point3::new(0.1, 1.0 / 3.0, -0.0);
         for format in [
@@ -235,7 +236,7 @@ mod tests {
 
     #[test]
     fn malformed_and_truncated_ply_meshes_name_file_and_place() {
-        let dir = TestDir::new("mesh-ply-bad");
+        let dir = TempDir::new("mesh-ply-bad").unwrap();
         let text = String::from_utf8(encode_ply_mesh(&cube(), Format::Ascii).unwrap()).unwrap();
         let binary = encode_ply_mesh(&cube(), Format::BinaryLittleEndian).unwrap();
         let header_len = binary

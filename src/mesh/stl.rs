@@ -326,7 +326,8 @@ fn parse_ascii(bytes: &[u8], source: &Path) -> Result<TriMesh, MeshError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cloud::io::test_support::{cube, TestDir};
+    use crate::cloud::io::test_support::cube;
+    use crate::fsio::TempDir;
 
     /// An ASCII STL of `mesh`'s triangles, as an exporter writes a triangle soup.
     fn ascii_of(mesh: &TriMesh) -> String {
@@ -361,7 +362,7 @@ mod tests {
 
     #[test]
     fn binary_write_read_round_trips_and_has_specified_layout() {
-        let dir = TestDir::new("stl");
+        let dir = TempDir::new("stl").unwrap();
         let mut cube = cube();
         cube.vertices[6] = Point3::new(1.0, 1.0, 1.25); // not axis-aligned any more
         let path = dir.join("cube.stl");
@@ -405,7 +406,7 @@ mod tests {
 
     #[test]
     fn malformed_and_truncated_stl_name_file_and_place() {
-        let dir = TestDir::new("stl-bad");
+        let dir = TempDir::new("stl-bad").unwrap();
         let ascii = ascii_of(&cube());
         let binary = encode_stl(&cube()).unwrap();
         let mut nan = binary.clone();

@@ -138,6 +138,11 @@ impl LabErrors {
         }
     }
 
+    /// [`LabErrors::draw`] of a trial, `None` for an exact cell (no errors).
+    pub fn trial_draw(&self, campaign_seed: u64, trial_seed: u64) -> Option<LabDraw> {
+        (*self != LabErrors::NONE).then(|| self.draw(campaign_seed, trial_seed))
+    }
+
     /// One line for reports: `hand-eye 3.0 mm / 0.50 deg, joints 5.0e-5 rad`.
     pub fn text(&self) -> String {
         format!(

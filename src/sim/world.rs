@@ -1079,7 +1079,7 @@ mod tests {
 
     #[test]
     fn shared_state_files_round_trip_between_handles() {
-        let dir = std::env::temp_dir().join(format!("gc-world-link-{}", std::process::id()));
+        let dir = crate::fsio::TempDir::new("world-link").unwrap();
         let a = WorldLink::files(&dir).unwrap();
         let b = WorldLink::files(&dir).unwrap();
         assert_eq!(b.palm(), None);
@@ -1100,6 +1100,5 @@ mod tests {
         };
         b.set_hand(&state);
         assert_eq!(a.hand(), state);
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -301,5 +301,8 @@ pub fn write_glb(scene: &TrialScene, path: &Path) -> Result<(), TrialError> {
             source,
         })?;
     }
-    super::write_atomically(path, &bytes)
+    crate::fsio::write_atomically(path, &bytes).map_err(|source| TrialError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }

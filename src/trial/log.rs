@@ -955,30 +955,7 @@ fn insert_trial(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::atomic::{AtomicUsize, Ordering};
-
-    /// A unique empty directory for one test, removed on drop.
-    struct TempDir(PathBuf);
-
-    impl TempDir {
-        fn new(name: &str) -> Self {
-            static COUNTER: AtomicUsize = AtomicUsize::new(0);
-            let dir = std::env::temp_dir().join(format!(
-                "graspcell-trial-log-{name}-{}-{}",
-                std::process::id(),
-                COUNTER.fetch_add(1, Ordering::Relaxed)
-            ));
-            let _ = std::fs::remove_dir_all(&dir);
-            std::fs::create_dir_all(&dir).unwrap();
-            TempDir(dir)
-        }
-    }
-
-    impl Drop for TempDir {
-        fn drop(&mut self) {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
+    use crate::fsio::TempDir;
 
     fn sample_trial() -> NewTrial {
         NewTrial {
@@ -1012,8 +989,8 @@ mod tests {
     /// whole: no row, no grade; once there is room, the same write succeeds once.
     #[test]
     fn a_graded_trial_is_recorded_whole_or_not_at_all() {
-        let dir = TempDir::new("full");
-        let mut log = TrialLog::open(dir.0.join("trials.sqlite")).unwrap();
+        let dir = TempDir::new("full").unwrap();
+        let mut log = TrialLog::open(dir.join("trials.sqlite")).unwrap();
         let grading =
             super::super::grade::Grading::new(super::super::grade::Grade::Success, None, None)
                 .unwrap();
@@ -1047,8 +1024,8 @@ mod tests {
 
     #[test]
     fn records_and_reads_back_every_field() {
-        let dir = TempDir::new("roundtrip");
-        let path = dir.0.join("sub/trials.sqlite");
+        let dir = TempDir::new("roundtrip").unwrap();
+        let path = dir.join("sub/trials.sqlite");
         let mut log = TrialLog::open(&path).unwrap();
         assert_eq!(log.schema_version().unwrap(), SCHEMA_VERSION);
         let mode: String = log
@@ -1100,8 +1077,8 @@ mod tests {
 
     #[test]
     fn updates_of_unknown_trials_and_invalid_trials_are_refused() {
-        let dir = TempDir::new("invalid");
-        let mut log = TrialLog::open(dir.0.join("t.sqlite")).unwrap();
+        let dir = TempDir::new("invalid").unwrap();
+        let mut log = TrialLog::open(dir.join("t.sqlite")).unwrap();
         assert!(matches!(
             log.set_outcome(42, &serde_json::Value::Null),
             Err(TrialError::UnknownTrial { id: 42, .. })
@@ -1142,8 +1119,8 @@ mod tests {
 
     #[test]
     fn migrations_apply_in_order_once_and_refuse_newer_files() {
-        let dir = TempDir::new("migrate");
-        let path = dir.0.join("m.sqlite");
+        let dir = TempDir::new("migrate").unwrap();
+        let path = dir.join("m.sqlite");
         let create = OpenFlags::SQLITE_OPEN_CREATE;
         let log = TrialLog::open_with(&path, create, &FAKE[..1]).unwrap();
         assert_eq!(log.schema_version().unwrap(), 1);
@@ -1178,8 +1155,8 @@ mod tests {
 
     #[test]
     fn a_version_1_log_gains_the_picture_column_and_keeps_its_trials() {
-        let dir = TempDir::new("picture-migration");
-        let path = dir.0.join("v1.sqlite");
+        let dir = TempDir::new("picture-migration").unwrap();
+        let path = dir.join("v1.sqlite");
         let create = OpenFlags::SQLITE_OPEN_CREATE;
         let mut log = TrialLog::open_with(&path, create, &MIGRATIONS[..1]).unwrap();
         let id = log.record_trial(&sample_trial()).unwrap();
@@ -1201,8 +1178,8 @@ mod tests {
 
     #[test]
     fn other_sqlite_databases_are_refused_and_left_alone() {
-        let dir = TempDir::new("foreign");
-        let path = dir.0.join("other.sqlite");
+        let dir = TempDir::new("foreign").unwrap();
+        let path = dir.join("other.sqlite");
         {
             let conn = Connection::open(&path).unwrap();
             conn.execute_batch(
@@ -1220,9 +1197,9 @@ mod tests {
         );
         assert_eq!(std::fs::read(&path).unwrap(), before);
         assert!(matches!(
-            TrialLog::open_existing(dir.0.join("absent.sqlite")),
+            TrialLog::open_existing(dir.join("absent.sqlite")),
             Err(TrialError::Missing { .. })
         ));
-        assert!(!dir.0.join("absent.sqlite").exists());
+        assert!(!dir.join("absent.sqlite").exists());
     }
 }

@@ -202,11 +202,3 @@ pub fn software_version() -> String {
         _ => env!("CARGO_PKG_VERSION").to_string(),
     }
 }
-
-/// Writes `bytes` to `path` atomically (see [`crate::fsio::write_atomically`]).
-pub(crate) fn write_atomically(path: &std::path::Path, bytes: &[u8]) -> Result<(), TrialError> {
-    crate::fsio::write_atomically(path, bytes).map_err(|source| TrialError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
-}

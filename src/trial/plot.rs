@@ -4,7 +4,8 @@
 //! little punctuation; lower case is drawn as upper case), encoded with `png`.
 
 use super::report::Report;
-use super::{write_atomically, TrialError};
+use super::TrialError;
+use crate::fsio::write_atomically;
 use std::path::Path;
 
 /// An RGB colour.
@@ -427,7 +428,10 @@ impl Canvas {
 
     /// Writes the canvas to `path` as PNG (atomically: temporary file, then rename).
     pub fn save_png(&self, path: &Path) -> Result<(), TrialError> {
-        write_atomically(path, &self.to_png(path)?)
+        write_atomically(path, &self.to_png(path)?).map_err(|source| TrialError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
     }
 }
 

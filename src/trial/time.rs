@@ -1,9 +1,11 @@
-//! UTC timestamps written as ISO-8601 (`2025-03-01T14:05:09.250Z`), millisecond precision.
+//! UTC timestamps written as ISO-8601 (`2025-03-01T14:05:09.250Z`), millisecond precision
+//! (formatted by [`crate::clock::format_utc`]).
 //!
 //! Callers pass timestamps in (the log never reads the clock itself), so tests can
 //! use fixed times; [`UtcTimestamp::now`] is for the command line.
 
 use super::TrialError;
+use crate::clock::{days_from_civil, format_utc, unix_ms_now, UtcPrecision};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
@@ -18,42 +20,15 @@ pub struct UtcTimestamp {
 impl UtcTimestamp {
     /// The current system time.
     pub fn now() -> Self {
-        let unix_ms = match std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH) {
-            Ok(d) => i64::try_from(d.as_millis()).unwrap_or(i64::MAX),
-            Err(e) => -i64::try_from(e.duration().as_millis()).unwrap_or(i64::MAX),
-        };
-        UtcTimestamp { unix_ms }
+        UtcTimestamp {
+            unix_ms: unix_ms_now(),
+        }
     }
 
     /// The instant `unix_ms` milliseconds after the epoch.
     pub fn from_unix_ms(unix_ms: i64) -> Self {
         UtcTimestamp { unix_ms }
     }
-}
-
-/// Days since 1970-01-01 of a proleptic Gregorian date (H. Hinnant's algorithm).
-fn days_from_civil(year: i64, month: u32, day: u32) -> i64 {
-    let y = if month <= 2 { year - 1 } else { year };
-    let era = y.div_euclid(400);
-    let yoe = y - era * 400;
-    let m = i64::from(month);
-    let doy = (153 * (if m > 2 { m - 3 } else { m + 9 }) + 2) / 5 + i64::from(day) - 1;
-    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
-    era * 146_097 + doe - 719_468
-}
-
-/// The date (year, month, day) of a day count since 1970-01-01.
-fn civil_from_days(days: i64) -> (i64, u32, u32) {
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    (year, month, day)
 }
 
 fn days_in_month(year: i64, month: u32) -> u32 {
@@ -67,18 +42,7 @@ fn days_in_month(year: i64, month: u32) -> u32 {
 
 impl fmt::Display for UtcTimestamp {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let days = self.unix_ms.div_euclid(86_400_000);
-        let ms_of_day = self.unix_ms.rem_euclid(86_400_000);
-        let (year, month, day) = civil_from_days(days);
-        let secs = ms_of_day / 1000;
-        write!(
-            f,
-            "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}.{:03}Z",
-            secs / 3600,
-            secs / 60 % 60,
-            secs % 60,
-            ms_of_day % 1000
-        )
+        f.write_str(&format_utc(self.unix_ms, UtcPrecision::Millis))
     }
 }
 

@@ -1,6 +1,5 @@
 //! `cell bench calib`: hand–eye solvers on synthetic samples and simulated collections.
 
-use super::median;
 use crate::calib::collect::{
     plan_poses, run_collection, CameraPrior, CollectOptions, PlannerCell, TargetRig,
 };
@@ -13,6 +12,7 @@ use crate::calib::{
 use crate::config::CellConfig;
 use crate::robot::Robot;
 use crate::sim::camera::Intrinsics;
+use crate::stats::median;
 use anyhow::Context;
 use clap::Args;
 use nalgebra::Point3;
@@ -99,10 +99,7 @@ fn bench_collect(
         rig: &rig,
         table: &config.table,
     };
-    let truth = SimTruth {
-        base_from_camera: prior.base_from_camera,
-        rig,
-    };
+    let truth = SimTruth::exact(prior.base_from_camera, rig);
     let (mut plan_ms, mut capture_ms, mut render_ms) = (Vec::new(), Vec::new(), Vec::new());
     let mut usable_min = usize::MAX;
     let bar = indicatif::ProgressBar::new(repeats as u64);

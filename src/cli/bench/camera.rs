@@ -1,6 +1,5 @@
 //! `cell bench camera`: the Kinect backend's conversion cost and the fakenect frame rate.
 
-use super::{median, percentile};
 use crate::cli::camera::sim_frames;
 use crate::config::CellConfig;
 use crate::geometry::Pose;
@@ -8,6 +7,7 @@ use crate::hw::kinect::convert::{depth_to_cloud, DepthEncoding};
 use crate::hw::kinect::fakenect::RawFrame;
 use crate::mesh::procedural::{generate, Category};
 use crate::sim::scene::{Scene, TableBox};
+use crate::stats::{median, percentile};
 use anyhow::Context;
 use clap::Args;
 use serde::Serialize;
@@ -87,9 +87,7 @@ pub fn bench_camera(config_path: &Path, args: CameraBenchArgs) -> anyhow::Result
     scene
         .add("mug", mug, base_from_mug)
         .context("bench scene")?;
-    let dir = std::env::temp_dir().join(format!("gc-bench-camera-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir)?;
+    let dir = crate::fsio::TempDir::new("bench-camera")?;
     let frame = sim_frames(&config, &scene, &config.base_from_camera(), 1, args.seed).remove(0);
     let (w, h) = (frame.width, frame.height);
     let started = Instant::now();
@@ -118,7 +116,6 @@ pub fn bench_camera(config_path: &Path, args: CameraBenchArgs) -> anyhow::Result
         Ok(rate) => (Some(rate), None),
         Err(why) => (None, Some(why)),
     };
-    std::fs::remove_dir_all(&dir).ok();
     let report = CameraBench {
         workload: format!(
             "one {w}x{h} raw 11-bit frame of a mug on the table ({valid} valid points) converted to an organised cloud"

@@ -69,14 +69,14 @@ pub fn bench(args: CanBenchArgs) -> anyhow::Result<ExitCode> {
     )?;
     drop(hub);
     progress.finish_and_clear();
-    let base = super::median(&mut in_process);
+    let base = crate::stats::median(&mut in_process);
     let figures = |backend, samples: &mut Vec<f64>| BackendFigures {
         backend,
         round_trips: samples.len(),
-        median_us: super::median(samples),
-        p99_us: super::percentile(samples, 0.99),
-        max_us: super::percentile(samples, 1.0),
-        median_ratio_to_in_process: super::median(samples) / base,
+        median_us: crate::stats::median(samples),
+        p99_us: crate::stats::percentile(samples, 0.99),
+        max_us: crate::stats::percentile(samples, 1.0),
+        median_ratio_to_in_process: crate::stats::median(samples) / base,
     };
     let report = CanBench {
         workload: format!(

@@ -1,11 +1,11 @@
 //! `cell bench fri`: the FRI driver against the robot simulator over loopback UDP.
 
-use super::percentile;
 use crate::clock::{Clock, SystemClock};
 use crate::config::CellConfig;
 use crate::hw::fri::driver::DriverCounters;
 use crate::hw::fri::{DriverConfig, FriDriver, FriState, Quality, JOINTS};
 use crate::sim::fri::{spawn_udp, DropReason, SimConfig, SimCounters, LBR4_VELOCITY_LIMIT_RAD_S};
+use crate::stats::percentile;
 use crate::trajectory::{JointLimits, Trajectory};
 use anyhow::Context;
 use clap::Args;

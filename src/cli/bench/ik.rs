@@ -1,10 +1,10 @@
 //! `cell bench ik`: inverse kinematics and reachability over seeded random poses.
 
-use super::{median, percentile};
 use crate::cli::emit;
 use crate::cli::robot::load_robot;
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::HandPose;
+use crate::stats::{median, percentile};
 use clap::Args;
 use rand::{Rng, SeedableRng};
 use serde::Serialize;

@@ -1,9 +1,9 @@
 //! `cell bench ipc`: point cloud latency between processes, iceoryx2 against a Unix socket.
 
-use super::{median, percentile};
 use crate::cli::emit;
 use crate::ipc::bench::{run_sender, BenchOptions, BenchSamples};
 use crate::ipc::payloads::{MAX_CLOUD_HEIGHT, MAX_CLOUD_WIDTH};
+use crate::stats::{median, percentile};
 use anyhow::Context;
 use clap::Args;
 use serde::Serialize;

@@ -4,8 +4,6 @@
 //! workload, repeats it, and reports medians (and ratios to a baseline measured in the
 //! same run where there is one).
 
-pub use crate::stats::{median, percentile};
-
 mod calib;
 mod camera;
 mod can;

@@ -66,8 +66,8 @@ pub fn bench_picture(
         size = (canvas.width, canvas.height);
     }
     let triangles: usize = scene.solids.iter().map(|s| s.triangles.len()).sum();
-    let render = super::median(&mut render_ms);
-    let encode = super::median(&mut encode_ms);
+    let render = crate::stats::median(&mut render_ms);
+    let encode = crate::stats::median(&mut encode_ms);
     let out = serde_json::json!({
         "benchmark": "picture",
         "trial_id": args.trial,
@@ -79,7 +79,7 @@ pub fn bench_picture(
         "render_median_ms": render,
         "png_encode_median_ms": encode,
         "render_and_encode_median_ms": render + encode,
-        "scene_assembly_median_ms": super::median(&mut scene_ms),
+        "scene_assembly_median_ms": crate::stats::median(&mut scene_ms),
         "goal_ms": 100.0,
         "load_average": super::load_average(),
     });

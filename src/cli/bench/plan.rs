@@ -1,6 +1,5 @@
 //! `cell bench plan`: grasp planning time per kernel, with reachability.
 
-use super::{median, percentile};
 use crate::cli::emit;
 use crate::cli::plan::{load_db, refine};
 use crate::config::CellConfig;
@@ -9,6 +8,7 @@ use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
 use crate::plan::{plan, Kernel, PlanOptions, PlanOutcome, Reachability};
 use crate::robot::hand::HandModel;
 use crate::robot::Robot;
+use crate::stats::{median, percentile};
 use clap::Args;
 use serde::Serialize;
 use std::path::{Path, PathBuf};

@@ -1,11 +1,12 @@
 //! `cell bench quality`: auto-grasp and epsilon evaluations on a mug mesh, and physics lifts.
 
-use super::{cpu_ms, median};
+use super::cpu_ms;
 use crate::config::CellConfig;
 use crate::quality::autograsp::{evaluate_grasp, AutoGraspOptions, GraspObject};
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
 use crate::sim::physics::{lift_test, LiftOutcome, LiftScene, PhysicsObject, PhysicsOptions};
+use crate::stats::median;
 use clap::Args;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -1,7 +1,7 @@
 //! `cell bench quality-metric`: epsilon and volume evaluations on 3-finger contact sets.
 
-use super::median;
 use crate::quality::{self, gws, wrench, Contact, QualityParams};
+use crate::stats::median;
 use clap::Args;
 use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};

@@ -1,6 +1,5 @@
 //! `cell bench register`: registration of partial mug views against the models, per stage.
 
-use super::median;
 use crate::cloud::io::{write_cloud, CloudEncoding};
 use crate::cloud::sample::sample_surface;
 use crate::cloud::segment::{segment_object, SegmentParams};
@@ -14,6 +13,7 @@ use crate::register::{
 };
 use crate::sim::camera::DepthCamera;
 use crate::sim::scene::{Scene, TableBox};
+use crate::stats::median;
 use anyhow::{bail, Context};
 use clap::Args;
 use serde::Serialize;

@@ -1,11 +1,12 @@
 //! `cell bench render`: the simulated depth camera over a table and a mug.
 
-use super::{cpu_ms, load_average, median, percentile};
+use super::{cpu_ms, load_average};
 use crate::config::CellConfig;
 use crate::geometry::Pose;
 use crate::mesh::procedural::{generate, Category};
 use crate::sim::camera::{DepthCamera, DepthFrame, Return, Surface};
 use crate::sim::scene::{Scene, TableBox};
+use crate::stats::{median, percentile};
 use anyhow::Context;
 use clap::Args;
 use serde::Serialize;
