@@ -188,6 +188,24 @@ pub fn lock_file_exclusive(file: &std::fs::File) -> std::io::Result<()> {
     }
 }
 
+/// Takes an exclusive `flock` on `file` if no one holds it; `Ok(false)` when
+/// another open file description holds it.
+pub fn try_lock_file_exclusive(file: &std::fs::File) -> std::io::Result<bool> {
+    use std::os::fd::AsRawFd;
+    loop {
+        // SAFETY: flock on a valid open descriptor has no other preconditions.
+        if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+            return Ok(true);
+        }
+        let err = std::io::Error::last_os_error();
+        match err.kind() {
+            std::io::ErrorKind::Interrupted => continue,
+            std::io::ErrorKind::WouldBlock => return Ok(false),
+            _ => return Err(err),
+        }
+    }
+}
+
 /// Releases a `flock` on `file` (closing the file would release it too).
 pub fn unlock_file(file: &std::fs::File) {
     use std::os::fd::AsRawFd;
@@ -214,6 +232,32 @@ pub fn recv_packet(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_contained_panic_is_an_error_with_its_message() {
+        assert_eq!(contain_panic(|| 3), Ok(3));
+        assert_eq!(
+            contain_panic(|| -> u8 { panic!("boom") }),
+            Err("boom".to_string())
+        );
+        let n = 7;
+        assert_eq!(
+            contain_panic(|| -> u8 { panic!("boom {n}") }),
+            Err("boom 7".to_string())
+        );
+    }
+
+    #[test]
+    fn a_held_lock_is_not_taken_twice() {
+        let dir = crate::fsio::TempDir::new("sys-lock").unwrap();
+        let path = dir.join("lock");
+        let a = std::fs::File::create(&path).unwrap();
+        let b = std::fs::File::create(&path).unwrap();
+        assert!(try_lock_file_exclusive(&a).unwrap());
+        assert!(!try_lock_file_exclusive(&b).unwrap());
+        drop(a);
+        assert!(try_lock_file_exclusive(&b).unwrap());
+    }
 
     static USR1: AtomicBool = AtomicBool::new(false);
 
@@ -259,4 +303,35 @@ mod tests {
         let t = monotonic_ns();
         assert!(t > 0 && monotonic_ns() >= t);
     }
+}
+
+thread_local! {
+    /// Whether a panic on this thread is being contained ([`contain_panic`]).
+    static CONTAINING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs `f`, turning a panic inside it into an error with the panic's message
+/// instead of a crash, for a dependency known to panic on some inputs. The panic
+/// hook stays silent for a contained panic (on this thread only); every other panic
+/// prints as before.
+pub fn contain_panic<T>(f: impl FnOnce() -> T) -> Result<T, String> {
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !CONTAINING.with(|c| c.get()) {
+                previous(info);
+            }
+        }));
+    });
+    let was = CONTAINING.with(|c| c.replace(true));
+    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
+    CONTAINING.with(|c| c.set(was));
+    outcome.map_err(|payload| {
+        payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "a panic without a message".to_string())
+    })
 }

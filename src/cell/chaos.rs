@@ -509,6 +509,27 @@ pub fn run(
         .parse()
         .map_err(|e| CellError::Invalid(format!("category {:?}: {e}", options.category)))?;
     let run_dir = harness.stage.run_dir.clone();
+    // One campaign per run directory: two would share the simulators' state, the
+    // log and the tmpfs.
+    std::fs::create_dir_all(&run_dir).map_err(|source| CellError::Io {
+        path: run_dir.clone(),
+        source,
+    })?;
+    let lock_path = run_dir.join("chaos.lock");
+    let lock = std::fs::File::create(&lock_path).map_err(|source| CellError::Io {
+        path: lock_path.clone(),
+        source,
+    })?;
+    let locked = crate::sys::try_lock_file_exclusive(&lock).map_err(|source| CellError::Io {
+        path: lock_path.clone(),
+        source,
+    })?;
+    if !locked {
+        return Err(CellError::Invalid(format!(
+            "{}: another fault campaign runs in this directory",
+            run_dir.display()
+        )));
+    }
     let mut summary = ChaosSummary::default();
     let mut kinds = options.kinds.clone();
     // The log: <run dir>/chaos.sqlite, kept on the small file system while the
@@ -760,6 +781,7 @@ pub fn run(
         })?;
     }
     drop(disk);
+    drop(lock);
     Ok(summary)
 }
 

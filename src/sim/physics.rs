@@ -326,13 +326,33 @@ impl PhysicsObject {
             .map_or(f64::INFINITY, |h| h.mass_properties(1.0).mass());
         let shape = match hull {
             Some(h) if hull_volume <= volume_m3 * 1.005 => h,
-            _ => {
-                let params = VHACDParameters {
-                    resolution: options.decomposition_resolution,
-                    max_convex_hulls: options.max_convex_parts,
-                    ..VHACDParameters::default()
+            hull => {
+                // parry's V-HACD panics on some meshes (an internal convex-hull
+                // error while clipping): another voxel resolution usually avoids
+                // it; failing that, the whole convex hull stands in.
+                let decompose = |resolution: u32| {
+                    let params = VHACDParameters {
+                        resolution,
+                        max_convex_hulls: options.max_convex_parts,
+                        ..VHACDParameters::default()
+                    };
+                    crate::sys::contain_panic(|| {
+                        SharedShape::convex_decomposition_with_params(vertices, indices, &params)
+                    })
                 };
-                SharedShape::convex_decomposition_with_params(vertices, indices, &params)
+                let resolution = options.decomposition_resolution;
+                match decompose(resolution).or_else(|e| {
+                    tracing::warn!(source = %source.display(), "V-HACD failed ({e}); retrying at another resolution");
+                    decompose(resolution * 3 / 4 + 1)
+                }) {
+                    Ok(shape) => shape,
+                    Err(e) => {
+                        tracing::warn!(source = %source.display(), "V-HACD failed again ({e}); the convex hull stands in");
+                        hull.ok_or_else(|| PhysicsError::Decomposition {
+                            source_name: source.display().to_string(),
+                        })?
+                    }
+                }
             }
         };
         let parts = shape.as_compound().map_or(1, |c| c.shapes().len());
