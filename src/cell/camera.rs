@@ -390,6 +390,10 @@ pub fn run(
             Err(e) => return Err(e.into()),
         };
         let trial_id = request.trial_id;
+        if let Err(e) = request.check() {
+            tracing::warn!(trial_id, "ignoring a malformed trial request: {e}");
+            continue;
+        }
         let snapshot = match backend.snapshot(config, run_dir, trial_id) {
             Ok(s) => s,
             Err(e) => {

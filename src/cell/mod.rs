@@ -301,12 +301,15 @@ pub fn load_category(
 pub const PENDING_TRIALS: usize = 16;
 
 /// A stage's trial requests and its other input, paired by trial id: either may
-/// arrive first; the newest [`PENDING_TRIALS`] of each are kept while the other is
-/// awaited.
+/// arrive first; the [`PENDING_TRIALS`] that arrived last of each are kept while the
+/// other is awaited. Kept by arrival, not by id: a peer's messages with huge ids
+/// (random bytes) once evicted every real trial as it came and wedged the stage
+/// (found by `cell chaos`). Requests whose texts do not decode are dropped.
 #[derive(Debug)]
 pub struct ByTrial<T> {
-    requests: std::collections::BTreeMap<u64, crate::ipc::TrialRequest>,
-    inputs: std::collections::BTreeMap<u64, T>,
+    requests: std::collections::BTreeMap<u64, (u64, crate::ipc::TrialRequest)>,
+    inputs: std::collections::BTreeMap<u64, (u64, T)>,
+    arrivals: u64,
 }
 
 impl<T> Default for ByTrial<T> {
@@ -314,6 +317,7 @@ impl<T> Default for ByTrial<T> {
         ByTrial {
             requests: Default::default(),
             inputs: Default::default(),
+            arrivals: 0,
         }
     }
 }
@@ -321,13 +325,23 @@ impl<T> Default for ByTrial<T> {
 impl<T> ByTrial<T> {
     /// A trial request arrived.
     pub fn request(&mut self, request: crate::ipc::TrialRequest) {
-        self.requests.insert(request.trial_id, request);
+        if let Err(e) = request.check() {
+            tracing::warn!(
+                trial_id = request.trial_id,
+                "ignoring a malformed trial request: {e}"
+            );
+            return;
+        }
+        self.arrivals += 1;
+        self.requests
+            .insert(request.trial_id, (self.arrivals, request));
         trim(&mut self.requests);
     }
 
     /// The other input of trial `trial_id` arrived.
     pub fn input(&mut self, trial_id: u64, input: T) {
-        self.inputs.insert(trial_id, input);
+        self.arrivals += 1;
+        self.inputs.insert(trial_id, (self.arrivals, input));
         trim(&mut self.inputs);
     }
 
@@ -341,15 +355,22 @@ impl<T> ByTrial<T> {
             .collect();
         ready
             .into_iter()
-            .filter_map(|id| Some((self.requests.remove(&id)?, self.inputs.remove(&id)?)))
+            .filter_map(|id| Some((self.requests.remove(&id)?.1, self.inputs.remove(&id)?.1)))
             .collect()
     }
 }
 
-/// Keeps the newest [`PENDING_TRIALS`] entries.
-fn trim<T>(map: &mut std::collections::BTreeMap<u64, T>) {
+/// Keeps the [`PENDING_TRIALS`] entries that arrived last.
+fn trim<T>(map: &mut std::collections::BTreeMap<u64, (u64, T)>) {
     while map.len() > PENDING_TRIALS {
-        map.pop_first();
+        let Some(oldest) = map
+            .iter()
+            .min_by_key(|(_, (arrival, _))| *arrival)
+            .map(|(id, _)| *id)
+        else {
+            return;
+        };
+        map.remove(&oldest);
     }
 }
 
@@ -393,6 +414,25 @@ mod tests {
         );
         pending.input(49, "newest");
         assert_eq!(pending.take_ready().len(), 1);
+        // Garbage with huge ids does not push out a real trial that comes later.
+        for id in 0..40u64 {
+            pending.request(request(u64::MAX - id));
+            pending.input(u64::MAX / 2 - id, "garbage");
+        }
+        pending.request(request(60));
+        pending.input(60, "real");
+        let ready: Vec<u64> = pending
+            .take_ready()
+            .iter()
+            .map(|(r, _)| r.trial_id)
+            .collect();
+        assert_eq!(ready, [60]);
+        // A request whose texts do not decode is no request.
+        let mut bytes = [0xffu8; std::mem::size_of::<crate::ipc::TrialRequest>()];
+        bytes[..8].copy_from_slice(&61u64.to_le_bytes());
+        pending.request(crate::ipc::from_wire_bytes(&bytes));
+        pending.input(61, "orphan");
+        assert!(pending.take_ready().is_empty());
     }
 
     #[test]
