@@ -241,7 +241,7 @@ pub fn run(
         };
         // Bytes that do not decode as a plan (a buggy peer) are no plan: dropped,
         // not reported as the trial's end.
-        let failure = match plan.failure().and_then(|f| plan.method().map(|_| f)) {
+        let failure = match plan.check().and_then(|()| plan.failure()) {
             Ok(f) => f,
             Err(e) => {
                 tracing::error!(trial_id, "malformed plan ignored: {e}");

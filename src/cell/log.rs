@@ -806,7 +806,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             }
         }
         while let Some(p) = plans.try_receive()? {
-            if let Err(e) = p.failure().and_then(|_| p.method().map(drop)) {
+            if let Err(e) = p.check() {
                 tracing::warn!(trial_id = p.trial_id, "ignoring a malformed plan: {e}");
                 continue;
             }

@@ -899,6 +899,14 @@ impl GraspPlan {
     pub fn method(&self) -> Result<&str, IpcError> {
         self.method.to_str("grasp plan method")
     }
+
+    /// Checks the fields that make bytes a plan at all: its failure code and method
+    /// text (the numbers are the executor's to validate).
+    pub fn check(&self) -> Result<(), IpcError> {
+        self.failure()?;
+        self.method()?;
+        Ok(())
+    }
 }
 
 /// Joint angles of arm and hand.
@@ -1183,6 +1191,29 @@ mod tests {
             garbled.protocol(),
             Err(IpcError::UnknownCode { code: 7, .. })
         ));
+        assert!(paper.check().is_ok());
+        assert!(garbled.check().is_err());
+    }
+
+    /// Random bytes are no plan: an unknown failure code or a method that is not
+    /// text is refused before anyone reads the numbers.
+    #[test]
+    fn a_plan_of_random_bytes_does_not_check() {
+        let plan = GraspPlan {
+            method: Name::new("grasp plan method", "laplace").unwrap(),
+            ..GraspPlan::default()
+        };
+        assert!(plan.check().is_ok());
+        let bad_code = GraspPlan {
+            failure: 0xdead_beef,
+            ..plan
+        };
+        assert!(matches!(
+            bad_code.check(),
+            Err(IpcError::UnknownCode { .. })
+        ));
+        let bytes = [0xffu8; size_of::<GraspPlan>()];
+        assert!(from_wire_bytes::<GraspPlan>(&bytes).check().is_err());
     }
 
     #[test]
