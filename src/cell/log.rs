@@ -534,6 +534,23 @@ impl Logger {
         })
     }
 
+    /// Grades a finished trial and queues it to be written; false (logged, and
+    /// taken out of the journal) when it cannot be recorded at all.
+    fn conclude(&mut self, trial: Trial, ending: Ending) -> bool {
+        let id = trial.request.trial_id;
+        match self.finish(trial, ending) {
+            Ok(concluded) => {
+                self.unrecorded.push(concluded);
+                true
+            }
+            Err(e) => {
+                tracing::error!(trial_id = id, "trial not recorded: {e}");
+                unjournal(&self.journal, id);
+                false
+            }
+        }
+    }
+
     /// Writes the oldest waiting trial with its grade (one transaction); on success
     /// returns the result to answer.
     fn record_oldest(&mut self) -> Option<Result<TrialResult, CellError>> {
@@ -744,13 +761,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             trial_id = id,
             "recording a trial the previous log stage was following"
         );
-        match logger.finish(trial, Ending::StageDied("log")) {
-            Ok(concluded) => logger.unrecorded.push(concluded),
-            Err(e) => {
-                tracing::error!(trial_id = id, "trial not recorded: {e}");
-                unjournal(&logger.journal, id);
-            }
-        }
+        logger.conclude(trial, Ending::StageDied("log"));
     }
     let stage = Stage::start(domain, "log")?;
     let results = stage.publisher::<TrialResult>()?;
@@ -855,19 +866,14 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             let Some(trial) = logger.trials.remove(&id) else {
                 continue;
             };
-            match logger.finish(trial, ending) {
-                Ok(concluded) => logger.unrecorded.push(concluded),
-                Err(e) => {
-                    tracing::error!(trial_id = id, "trial not recorded: {e}");
-                    unjournal(&logger.journal, id);
-                    results.send(&TrialResult::new(
-                        id,
-                        monotonic_now_ns(),
-                        IpcGrade::Failure,
-                        IpcCause::Other,
-                        Timings::default(),
-                    ))?;
-                }
+            if !logger.conclude(trial, ending) {
+                results.send(&TrialResult::new(
+                    id,
+                    monotonic_now_ns(),
+                    IpcGrade::Failure,
+                    IpcCause::Other,
+                    Timings::default(),
+                ))?;
             }
         }
         // Oldest first; what the file refuses (a full disk) waits for the next tick,
