@@ -20,8 +20,8 @@ use crate::config::CellConfig;
 use crate::geometry::{Pose, PoseJson};
 use crate::ipc::{
     monotonic_now_ns, wait_any, CameraFault, CameraStatus, CloudTopic, Domain, ExecutionStatus,
-    FailureCause as IpcCause, FitStatus, Fits, Grade as IpcGrade, GraspPlan, Phase, Protocol,
-    Stage, StageStatus, Timings, TrialRequest, TrialResult, Wakeable,
+    FailureCause as IpcCause, FitStatus, Fits, Grade as IpcGrade, GraspPlan, MessageSubscriber,
+    Phase, Protocol, Stage, StageStatus, Timings, TrialRequest, TrialResult, Wakeable,
 };
 use crate::robot::Robot;
 use crate::sim::observer::{Attempt, Observation, Observer, ObserverMode};
@@ -215,7 +215,7 @@ struct Logger {
     log: TrialLog,
     observer: Option<Observer>,
     robot: Robot,
-    trials: BTreeMap<u64, Trial>,
+    followed: Followed,
     /// The grasp simulator's hand (the pictures close its fingers).
     hand: crate::robot::hand::HandModel,
     /// Category databases loaded for the pictures (`None`: could not be loaded).
@@ -225,9 +225,44 @@ struct Logger {
     /// Graded trials the file refused (a full disk), oldest first: written, and
     /// only then answered, as soon as it takes them.
     unrecorded: Vec<Concluded>,
-    /// The journal of trials followed and not yet recorded ([`journal_dir`]).
-    journal: PathBuf,
     config: CellConfig,
+}
+
+/// The trials being followed, and their journal ([`journal_dir`]): followed and not
+/// yet recorded.
+struct Followed {
+    trials: BTreeMap<u64, Trial>,
+    journal: PathBuf,
+}
+
+impl Followed {
+    /// Starts following every trial requested since the last call.
+    fn admit(&mut self, requests: &MessageSubscriber<TrialRequest>) -> Result<(), CellError> {
+        while let Some(request) = requests.try_receive()? {
+            if let Err(e) = request.check() {
+                tracing::warn!("ignoring a malformed trial request: {e}");
+                continue;
+            }
+            let trial = Trial::new(request, UtcTimestamp::now());
+            journal_trial(&self.journal, &trial);
+            self.trials.insert(request.trial_id, trial);
+        }
+        Ok(())
+    }
+
+    /// The followed trial a stage's message belongs to. A message can be read before
+    /// the request that caused it (they travel on different services): on a miss the
+    /// requests are read again, and only then is the message someone else's.
+    fn trial(
+        &mut self,
+        requests: &MessageSubscriber<TrialRequest>,
+        trial_id: u64,
+    ) -> Result<Option<&mut Trial>, CellError> {
+        if !self.trials.contains_key(&trial_id) {
+            self.admit(requests)?;
+        }
+        Ok(self.trials.get_mut(&trial_id))
+    }
 }
 
 /// A finished, graded trial and the result the operator gets once it is recorded.
@@ -545,7 +580,7 @@ impl Logger {
             }
             Err(e) => {
                 tracing::error!(trial_id = id, "trial not recorded: {e}");
-                unjournal(&self.journal, id);
+                unjournal(&self.followed.journal, id);
                 false
             }
         }
@@ -561,7 +596,7 @@ impl Logger {
         Some(match written {
             Ok(id) => {
                 let c = self.unrecorded.remove(0);
-                unjournal(&self.journal, c.result.trial_id);
+                unjournal(&self.followed.journal, c.result.trial_id);
                 self.pictures_due.push(id);
                 tracing::info!(trial_id = c.result.trial_id, log_id = id, grading = %c.grading, "trial graded");
                 Ok(c.result)
@@ -747,15 +782,17 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
         dbs: BTreeMap::new(),
         pictures_due: Vec::new(),
         unrecorded: Vec::new(),
-        journal,
+        followed: Followed {
+            trials: BTreeMap::new(),
+            journal,
+        },
         config: config.clone(),
         options,
         log,
         observer,
-        trials: BTreeMap::new(),
     };
     // The trials a killed predecessor was following: recorded as failed.
-    for trial in journaled(&logger.journal) {
+    for trial in journaled(&logger.followed.journal) {
         let id = trial.request.trial_id;
         tracing::warn!(
             trial_id = id,
@@ -790,29 +827,21 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             Err(_) if stop_requested() => break,
             Err(e) => return Err(e.into()),
         }
-        while let Some(request) = requests.try_receive()? {
-            if let Err(e) = request.check() {
-                tracing::warn!("ignoring a malformed trial request: {e}");
-                continue;
-            }
-            let trial = Trial::new(request, UtcTimestamp::now());
-            journal_trial(&logger.journal, &trial);
-            logger.trials.insert(request.trial_id, trial);
-        }
+        logger.followed.admit(&requests)?;
         while let Some(cloud) = clouds.try_receive()? {
             let h = *cloud.header();
-            if let Some(t) = logger.trials.get_mut(&h.trial_id) {
+            if let Some(t) = logger.followed.trial(&requests, h.trial_id)? {
                 t.cloud_ns = h.stamp_ns;
                 t.snapshot_path = save_snapshot(&logger.options.run_dir, &cloud);
             }
         }
         while let Some(c) = camera_statuses.try_receive()? {
-            if let Some(t) = logger.trials.get_mut(&c.trial_id) {
+            if let Some(t) = logger.followed.trial(&requests, c.trial_id)? {
                 t.camera = Some(c);
             }
         }
         while let Some(f) = fits.try_receive()? {
-            if let Some(t) = logger.trials.get_mut(&f.trial_id) {
+            if let Some(t) = logger.followed.trial(&requests, f.trial_id)? {
                 t.fits = Some(f);
             }
         }
@@ -821,12 +850,12 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
                 tracing::warn!(trial_id = p.trial_id, "ignoring a malformed plan: {e}");
                 continue;
             }
-            if let Some(t) = logger.trials.get_mut(&p.trial_id) {
+            if let Some(t) = logger.followed.trial(&requests, p.trial_id)? {
                 t.plan = Some(p);
             }
         }
         while let Some(s) = statuses.try_receive()? {
-            let Some(t) = logger.trials.get_mut(&s.trial_id) else {
+            let Some(t) = logger.followed.trial(&requests, s.trial_id)? else {
                 continue;
             };
             match s.phase() {
@@ -839,7 +868,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             }
         }
         let mut finished = Vec::new();
-        for (id, trial) in &logger.trials {
+        for (id, trial) in &logger.followed.trials {
             if trial.end.is_some() {
                 finished.push((*id, Ending::Reported));
                 continue;
@@ -863,7 +892,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             }
         }
         for (id, ending) in finished {
-            let Some(trial) = logger.trials.remove(&id) else {
+            let Some(trial) = logger.followed.trials.remove(&id) else {
                 continue;
             };
             if !logger.conclude(trial, ending) {
@@ -933,6 +962,31 @@ mod tests {
         );
         unjournal(&journal, 41);
         assert!(journaled(&journal).is_empty());
+    }
+
+    /// A stage's answer read before its request (two services, no order between
+    /// them) still finds its trial: the camera's "vanished" once went unseen and the
+    /// trial timed out instead of failing on the camera.
+    #[test]
+    fn an_answer_read_before_its_request_finds_its_trial() {
+        let dir = crate::fsio::TempDir::new("followed").unwrap();
+        let domain = crate::ipc::Domain::temporary("log-followed").unwrap();
+        let operator = Stage::start(&domain, "operator").unwrap();
+        let log = Stage::start(&domain, "log").unwrap();
+        let requests = log.subscriber::<TrialRequest>().unwrap();
+        let publisher = operator.publisher::<TrialRequest>().unwrap();
+        let mut followed = Followed {
+            trials: BTreeMap::new(),
+            journal: journal_dir(&dir.join("trials.sqlite")),
+        };
+        followed.admit(&requests).unwrap();
+        let request = TrialRequest::new(2, 0, "mug", "top", "laplace").unwrap();
+        publisher.send(&request).unwrap();
+        // The camera's status for trial 2 is read now, before the next admit.
+        let trial = followed.trial(&requests, 2).unwrap().expect("trial 2");
+        assert_eq!(trial.request, request);
+        assert!(followed.trial(&requests, 3).unwrap().is_none());
+        assert_eq!(journaled(&followed.journal).len(), 1);
     }
 
     #[test]
