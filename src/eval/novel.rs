@@ -202,6 +202,9 @@ pub struct NovelTrial {
     pub note: String,
     /// The executed palm pose, when executed.
     pub palm: Option<PoseJson>,
+    /// The executed spread (rad), when executed: with `palm` and the object's
+    /// pose, `cell quality --object … --pose … --spread … --lift` replays the grade.
+    pub spread_rad: Option<f64>,
     /// Best fit's origin from the object's true origin (mm), when any model registered.
     pub best_fit_offset_mm: Option<f64>,
     /// Planning time of this method (ms).
@@ -721,6 +724,7 @@ pub fn run_novel(
                         task_in_reach: in_reach,
                         note: seen.note,
                         palm: palm.map(|(p, _)| PoseJson::from(&p)),
+                        spread_rad: palm.map(|(_, spread)| spread),
                         best_fit_offset_mm,
                         plan_ms,
                     });
@@ -792,6 +796,7 @@ mod tests {
             task_in_reach: method != "best-single",
             note: String::new(),
             palm: None,
+            spread_rad: None,
             best_fit_offset_mm: None,
             plan_ms: 1.0,
         }
