@@ -124,6 +124,36 @@ pub fn bounding_box(mesh: &TriMesh) -> Option<(Point3<f64>, Point3<f64>)> {
     corners
 }
 
+/// Whether the mesh is a solid of revolution about its frame's z axis, within
+/// `tolerance_m`: in every 5 mm slab of height holding vertices, the outermost vertex
+/// of each of twelve 30 deg sectors lies at the same distance from the axis. A
+/// bottle is; a mug with a handle, or a tool lying flat, is not (its rotation about
+/// the axis matters).
+pub fn is_axisymmetric(mesh: &TriMesh, tolerance_m: f64) -> bool {
+    const SLAB_M: f64 = 0.005;
+    const SECTORS: usize = 12;
+    let mut slabs: std::collections::BTreeMap<i64, [f64; SECTORS]> = Default::default();
+    for p in &mesh.vertices {
+        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+            return false;
+        }
+        let r = p.x.hypot(p.y);
+        let angle = p.y.atan2(p.x).rem_euclid(std::f64::consts::TAU);
+        let sector = ((angle / std::f64::consts::TAU * SECTORS as f64) as usize).min(SECTORS - 1);
+        let slab = slabs
+            .entry((p.z / SLAB_M).floor() as i64)
+            .or_insert([f64::NEG_INFINITY; SECTORS]);
+        slab[sector] = slab[sector].max(r);
+    }
+    !slabs.is_empty()
+        && slabs.values().all(|outer| {
+            let lo = outer.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = outer.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            // An empty sector (-inf) next to a filled one is asymmetric.
+            hi - lo <= tolerance_m
+        })
+}
+
 /// Number of pairs of triangles that share no vertex yet intersect: zero for a
 /// surface that does not pass through itself. `None` for an invalid mesh.
 pub fn self_intersections(mesh: &TriMesh) -> Option<usize> {
@@ -158,6 +188,32 @@ pub fn self_intersections(mesh: &TriMesh) -> Option<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_cylinder_is_axisymmetric_and_a_box_or_a_mug_is_not() {
+        use crate::quality::autograsp::tests::{cuboid, cylinder};
+        assert!(is_axisymmetric(&cylinder(0.04, 0.2, 32), 0.002));
+        // Square: the corners lie 12 mm farther out than the faces' middles.
+        assert!(!is_axisymmetric(
+            &cuboid([0.0, 0.0, 0.05], [0.06, 0.06, 0.1]),
+            0.002
+        ));
+        // A body with a handle on one side.
+        let mut mug = cylinder(0.04, 0.1, 32);
+        let handle = cuboid([0.05, 0.0, 0.0], [0.02, 0.01, 0.05]);
+        let base = mug.vertices.len() as u32;
+        mug.vertices.extend(handle.vertices);
+        mug.triangles
+            .extend(handle.triangles.iter().map(|t| t.map(|i| i + base)));
+        assert!(!is_axisymmetric(&mug, 0.002));
+        assert!(!is_axisymmetric(
+            &TriMesh {
+                vertices: vec![],
+                triangles: vec![]
+            },
+            0.002
+        ));
+    }
 
     /// A unit-edge tetrahedron with outward winding, built by hand.
     fn tetrahedron() -> TriMesh {

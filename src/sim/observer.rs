@@ -31,12 +31,14 @@
 //! - executed: registration when the best-fitting model's origin lies more than
 //!   [`REGISTRATION_TOLERANCE_M`] (2 cm) from the object's true origin, or its tilt
 //!   or yaw ([`crate::geometry::tilt_and_yaw_deg`]) is off by more than
-//!   [`REGISTRATION_TOLERANCE_DEG`] (30 deg) — the models and objects share the
+//!   [`REGISTRATION_TOLERANCE_DEG`] (30 deg; the yaw not for a solid of revolution,
+//!   a bottle) — the models and objects share the
 //!   procedural frame: base centre, z up, a mug's handle along +x; else shape
 //!   dissimilarity (the models were in place; their shape misled the grasp).
 
 use crate::config::CellConfig;
 use crate::geometry::{tilt_and_yaw_deg, Pose};
+use crate::mesh::topology::is_axisymmetric;
 use crate::mesh::TriMesh;
 use crate::quality::autograsp::{
     evaluate_grasp, retreat_until_clear, AutoGraspOptions, GraspObject, GraspSimError,
@@ -59,6 +61,10 @@ pub const SUCCESS_EPSILON: f64 = 0.05;
 
 /// Registration error (m) above which a failed grasp is blamed on registration.
 pub const REGISTRATION_TOLERANCE_M: f64 = 0.02;
+
+/// How far (m) an object may depart from a solid of revolution and still have its
+/// yaw ignored by the blame ([`is_axisymmetric`]).
+const AXISYMMETRY_TOLERANCE_M: f64 = 0.002;
 
 /// Tilt or yaw error (deg) of the best fit above which a failed grasp is blamed on
 /// registration.
@@ -201,16 +207,21 @@ pub struct RegistrationError {
     pub tilt_deg: f64,
     /// Rotation about the object's z axis (deg).
     pub yaw_deg: f64,
+    /// The object is a solid of revolution about its z axis (a bottle): its yaw
+    /// does not matter and does not blame the registration.
+    pub axisymmetric: bool,
 }
 
 impl RegistrationError {
-    /// The error of `best_fit` against the object's true pose.
-    pub fn of(best_fit: &Pose, base_from_object: &Pose) -> RegistrationError {
+    /// The error of `best_fit` against the true pose of an object that is
+    /// `axisymmetric` or not ([`crate::mesh::topology::is_axisymmetric`]).
+    pub fn of(best_fit: &Pose, base_from_object: &Pose, axisymmetric: bool) -> RegistrationError {
         let (tilt_deg, yaw_deg) = tilt_and_yaw_deg(base_from_object, best_fit);
         RegistrationError {
             offset_m: (best_fit.translation.vector - base_from_object.translation.vector).norm(),
             tilt_deg,
             yaw_deg,
+            axisymmetric,
         }
     }
 
@@ -223,7 +234,7 @@ impl RegistrationError {
             Some(e) if e.tilt_deg > REGISTRATION_TOLERANCE_DEG => {
                 (FailureCause::Registration, CauseRule::RegistrationTilt)
             }
-            Some(e) if e.yaw_deg > REGISTRATION_TOLERANCE_DEG => {
+            Some(e) if e.yaw_deg > REGISTRATION_TOLERANCE_DEG && !e.axisymmetric => {
                 (FailureCause::Registration, CauseRule::RegistrationYaw)
             }
             _ => (FailureCause::ShapeDissimilarity, CauseRule::Shape),
@@ -482,9 +493,13 @@ impl Observer {
         .map_err(simulation)?;
         let contacts = contact_parts(&self.hand, &evaluation.outcome.contacts);
         let epsilon = evaluation.epsilon;
-        let registration = best_fit
-            .as_ref()
-            .map(|fit| RegistrationError::of(fit, base_from_object));
+        let registration = best_fit.as_ref().map(|fit| {
+            RegistrationError::of(
+                fit,
+                base_from_object,
+                is_axisymmetric(mesh, AXISYMMETRY_TOLERANCE_M),
+            )
+        });
         let blame = RegistrationError::blame(registration.as_ref());
         let static_epsilon = verdict(
             static_rule(
@@ -756,8 +771,9 @@ mod tests {
         assert_eq!(static_rule(false, 3, true, 0.02).grade(), Grade::Partial);
         assert_eq!(static_rule(false, 2, true, 0.08).grade(), Grade::Success);
         let object = pose_from_params(&[0.6, 0.1, 0.0, 0.0, 0.0, 0.3]);
-        let blame =
-            |fit: &Pose| RegistrationError::blame(Some(&RegistrationError::of(fit, &object)));
+        let blame = |fit: &Pose| {
+            RegistrationError::blame(Some(&RegistrationError::of(fit, &object, false)))
+        };
         // In place: shape. Turned 40 deg about the vertical (a handle the wrong
         // way): registration by yaw. Tipped 40 deg: by tilt. 3 cm off: by offset.
         assert_eq!(blame(&object).1, CauseRule::Shape);
@@ -770,6 +786,9 @@ mod tests {
         assert_eq!(blame(&tipped).1, CauseRule::RegistrationTilt);
         let shifted = pose_from_params(&[0.0, 0.03, 0.0, 0.0, 0.0, 0.0]) * object;
         assert_eq!(blame(&shifted).1, CauseRule::RegistrationOffset);
+        // A bottle turned about its axis is the same bottle.
+        let bottle = RegistrationError::of(&turned, &object, true);
+        assert_eq!(RegistrationError::blame(Some(&bottle)).1, CauseRule::Shape);
         assert_eq!(
             RegistrationError::blame(None).0,
             FailureCause::ShapeDissimilarity
