@@ -495,24 +495,11 @@ fn panics_in(dir: &Path) -> (u32, Option<String>) {
     (count, first)
 }
 
-/// Runs a fault campaign on a cell started from `harness` (simulated devices) in
-/// `domain`; calls `on_trial` after each trial.
-pub fn run(
-    mut harness: HarnessOptions,
-    domain: Domain,
-    db: &CategoryDb,
-    options: &ChaosOptions,
-    on_trial: &mut dyn FnMut(&ChaosTrial),
-) -> Result<ChaosSummary, CellError> {
-    let category: Category = options
-        .category
-        .parse()
-        .map_err(|e| CellError::Invalid(format!("category {:?}: {e}", options.category)))?;
-    let run_dir = harness.stage.run_dir.clone();
-    // One campaign per run directory: two would share the simulators' state, the
-    // log and the tmpfs.
-    std::fs::create_dir_all(&run_dir).map_err(|source| CellError::Io {
-        path: run_dir.clone(),
+/// Takes the run directory for one campaign (created if missing): two would share
+/// the simulators' state, the log and the tmpfs. The lock lasts as long as the file.
+fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File, CellError> {
+    std::fs::create_dir_all(run_dir).map_err(|source| CellError::Io {
+        path: run_dir.to_path_buf(),
         source,
     })?;
     let lock_path = run_dir.join("chaos.lock");
@@ -530,6 +517,163 @@ pub fn run(
             run_dir.display()
         )));
     }
+    Ok(lock)
+}
+
+/// The small file system the log is kept on for `disk-full` faults (an earlier
+/// campaign's rows copied onto it); without one (not root) the fault is dropped from
+/// `kinds` and the summary says why.
+fn log_disk(
+    run_dir: &Path,
+    harness: &mut HarnessOptions,
+    kinds: &mut Vec<FaultKind>,
+    summary: &mut ChaosSummary,
+) -> Result<Option<LogDisk>, CellError> {
+    Ok(match LogDisk::mount(&run_dir.join("logfs")) {
+        Ok(disk) => {
+            harness.log_path = disk.mount.join("chaos.sqlite");
+            if summary.log_path.is_file() {
+                std::fs::copy(&summary.log_path, &harness.log_path).map_err(|source| {
+                    CellError::Io {
+                        path: harness.log_path.clone(),
+                        source,
+                    }
+                })?;
+            }
+            summary.disk_full = "a 16 MiB tmpfs under the log, filled to the last byte".into();
+            Some(disk)
+        }
+        Err(e) => {
+            kinds.retain(|k| *k != FaultKind::DiskFull);
+            summary.disk_full = format!("not injected ({e})");
+            None
+        }
+    })
+}
+
+/// Sets the CAN and FRI links' faults of `fault` for the trial.
+fn set_link_faults(cell: &Cell, fault: &Fault) -> Result<(), CellError> {
+    let Some(links) = cell.faulty_links() else {
+        return Ok(());
+    };
+    let kind = &fault.kind;
+    let p = fault.probability.unwrap_or(0.0);
+    let can = FaultConfig {
+        loss_probability: if *kind == FaultKind::CanLoss { p } else { 0.0 },
+        corrupt_probability: if *kind == FaultKind::CanCorruption {
+            p
+        } else {
+            0.0
+        },
+        corruption: Corruption::Either,
+        ..FaultConfig::default()
+    };
+    links
+        .can
+        .set_faults(&can)
+        .map_err(|e| CellError::Invalid(e.to_string()))?;
+    let fri = LinkFaults {
+        withhold_probability: if *kind == FaultKind::FriWithheld {
+            p
+        } else {
+            0.0
+        },
+        answer_delay_s: fault.delay_s.unwrap_or(0.0),
+        spoof_probability: if *kind == FaultKind::FriSpoof { p } else { 0.0 },
+    };
+    links.fri.set_faults(fri).map_err(CellError::Invalid)?;
+    Ok(())
+}
+
+/// What became of a trial (`completed`, `failed` or `hang`) and the failure's cause,
+/// counted in `summary`.
+fn account(
+    outcome: Result<Option<crate::ipc::TrialResult>, CellError>,
+    summary: &mut ChaosSummary,
+) -> Result<(&'static str, Option<String>), CellError> {
+    let (outcome, cause) = match outcome {
+        Ok(Some(result)) => {
+            let grade = result.grade().ok();
+            let cause = result.cause().ok();
+            match (grade, cause) {
+                (Some(g), _) if g != crate::ipc::Grade::Failure => ("completed", None),
+                (_, Some(c)) => ("failed", Some(format!("{c:?}"))),
+                _ => ("failed", Some("unreadable result".to_string())),
+            }
+        }
+        Ok(None) => {
+            summary.results_lost_with_log += 1;
+            ("failed", Some("log stage killed".to_string()))
+        }
+        Err(CellError::Timeout { .. }) => {
+            summary.hangs += 1;
+            (
+                "hang",
+                Some("no result within the trial timeout".to_string()),
+            )
+        }
+        Err(e) => return Err(e),
+    };
+    match outcome {
+        "completed" => summary.completed += 1,
+        _ => {
+            *summary
+                .failed
+                .entry(cause.clone().unwrap_or_default())
+                .or_default() += 1
+        }
+    }
+    Ok((outcome, cause))
+}
+
+/// Strikes trial `trial_id` with `fault` once its request is out: kills a stage,
+/// publishes garbage, or frees the full disk a while later (the links' faults are
+/// set before, [`set_link_faults`]).
+fn strike(
+    cell: &mut Cell,
+    fault: &Fault,
+    peer: &BuggyPeer,
+    disk: Option<&LogDisk>,
+    trial_id: u64,
+    rng: &mut ChaCha8Rng,
+) -> Result<(), CellError> {
+    match fault.kind {
+        FaultKind::Kill => {
+            std::thread::sleep(Duration::from_secs_f64(fault.at_s.unwrap_or(0.0)));
+            cell.kill(fault.stage.unwrap_or("plan"))
+        }
+        FaultKind::ShmCorrupt => peer.publish(fault.messages.unwrap_or(0), trial_id, rng),
+        FaultKind::DiskFull => {
+            // The disk is freed a while into the trial (before the
+            // result, which waits for the row to be written).
+            let (at, ballast) = (fault.at_s.unwrap_or(0.0), disk.map(|d| d.ballast.clone()));
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_secs_f64(at));
+                if let Some(b) = ballast {
+                    let _ = std::fs::remove_file(b);
+                }
+            });
+            Ok(())
+        }
+        _ => Ok(()),
+    }
+}
+
+/// Runs a fault campaign on a cell started from `harness` (simulated devices) in
+/// `domain`; calls `on_trial` after each trial.
+pub fn run(
+    mut harness: HarnessOptions,
+    domain: Domain,
+    db: &CategoryDb,
+    options: &ChaosOptions,
+    on_trial: &mut dyn FnMut(&ChaosTrial),
+) -> Result<ChaosSummary, CellError> {
+    let category: Category = options
+        .category
+        .parse()
+        .map_err(|e| CellError::Invalid(format!("category {:?}: {e}", options.category)))?;
+    let run_dir = harness.stage.run_dir.clone();
+    let lock = lock_run_dir(&run_dir)?;
     let mut summary = ChaosSummary::default();
     let mut kinds = options.kinds.clone();
     // The log: <run dir>/chaos.sqlite, kept on the small file system while the
@@ -538,26 +682,7 @@ pub fn run(
     summary.log_path = run_dir.join("chaos.sqlite");
     harness.log_path = summary.log_path.clone();
     let disk = if kinds.contains(&FaultKind::DiskFull) {
-        match LogDisk::mount(&run_dir.join("logfs")) {
-            Ok(disk) => {
-                harness.log_path = disk.mount.join("chaos.sqlite");
-                if summary.log_path.is_file() {
-                    std::fs::copy(&summary.log_path, &harness.log_path).map_err(|source| {
-                        CellError::Io {
-                            path: harness.log_path.clone(),
-                            source,
-                        }
-                    })?;
-                }
-                summary.disk_full = "a 16 MiB tmpfs under the log, filled to the last byte".into();
-                Some(disk)
-            }
-            Err(e) => {
-                kinds.retain(|k| *k != FaultKind::DiskFull);
-                summary.disk_full = format!("not injected ({e})");
-                None
-            }
-        }
+        log_disk(&run_dir, &mut harness, &mut kinds, &mut summary)?
     } else {
         summary.disk_full = "not asked for".into();
         None
@@ -602,33 +727,7 @@ pub fn run(
             lab: None,
         };
         // Faults of the links and the disk last the trial.
-        if let Some(links) = cell.faulty_links() {
-            let p = fault.probability.unwrap_or(0.0);
-            let can = FaultConfig {
-                loss_probability: if *kind == FaultKind::CanLoss { p } else { 0.0 },
-                corrupt_probability: if *kind == FaultKind::CanCorruption {
-                    p
-                } else {
-                    0.0
-                },
-                corruption: Corruption::Either,
-                ..FaultConfig::default()
-            };
-            links
-                .can
-                .set_faults(&can)
-                .map_err(|e| CellError::Invalid(e.to_string()))?;
-            let fri = LinkFaults {
-                withhold_probability: if *kind == FaultKind::FriWithheld {
-                    p
-                } else {
-                    0.0
-                },
-                answer_delay_s: fault.delay_s.unwrap_or(0.0),
-                spoof_probability: if *kind == FaultKind::FriSpoof { p } else { 0.0 },
-            };
-            links.fri.set_faults(fri).map_err(CellError::Invalid)?;
-        }
+        set_link_faults(&cell, &fault)?;
         if *kind == FaultKind::DiskFull {
             if let Some(disk) = &disk {
                 disk.fill()?;
@@ -643,32 +742,14 @@ pub fn run(
             &options.task,
             &options.method,
             &mut |cell| {
-                let struck = match fault.kind {
-                    FaultKind::Kill => {
-                        std::thread::sleep(Duration::from_secs_f64(fault.at_s.unwrap_or(0.0)));
-                        cell.kill(fault.stage.unwrap_or("plan"))
-                    }
-                    FaultKind::ShmCorrupt => {
-                        peer.publish(fault.messages.unwrap_or(0), setup.trial_id, &mut trial_rng)
-                    }
-                    FaultKind::DiskFull => {
-                        // The disk is freed a while into the trial (before the
-                        // result, which waits for the row to be written).
-                        let (at, ballast) = (
-                            fault.at_s.unwrap_or(0.0),
-                            disk.as_ref().map(|d| d.ballast.clone()),
-                        );
-                        std::thread::spawn(move || {
-                            std::thread::sleep(Duration::from_secs_f64(at));
-                            if let Some(b) = ballast {
-                                let _ = std::fs::remove_file(b);
-                            }
-                        });
-                        Ok(())
-                    }
-                    _ => Ok(()),
-                };
-                if let Err(e) = struck {
+                if let Err(e) = strike(
+                    cell,
+                    &fault,
+                    &peer,
+                    disk.as_ref(),
+                    setup.trial_id,
+                    &mut trial_rng,
+                ) {
                     strike_error = Some(e);
                 }
             },
@@ -676,38 +757,7 @@ pub fn run(
         if let Some(e) = strike_error {
             return Err(e);
         }
-        let (outcome, cause) = match outcome {
-            Ok(Some(result)) => {
-                let grade = result.grade().ok();
-                let cause = result.cause().ok();
-                match (grade, cause) {
-                    (Some(g), _) if g != crate::ipc::Grade::Failure => ("completed", None),
-                    (_, Some(c)) => ("failed", Some(format!("{c:?}"))),
-                    _ => ("failed", Some("unreadable result".to_string())),
-                }
-            }
-            Ok(None) => {
-                summary.results_lost_with_log += 1;
-                ("failed", Some("log stage killed".to_string()))
-            }
-            Err(CellError::Timeout { .. }) => {
-                summary.hangs += 1;
-                (
-                    "hang",
-                    Some("no result within the trial timeout".to_string()),
-                )
-            }
-            Err(e) => return Err(e),
-        };
-        match outcome {
-            "completed" => summary.completed += 1,
-            _ => {
-                *summary
-                    .failed
-                    .entry(cause.clone().unwrap_or_default())
-                    .or_default() += 1
-            }
-        }
+        let (outcome, cause) = account(outcome, &mut summary)?;
         // Back to a healthy cell before the next trial.
         if let Some(links) = cell.faulty_links() {
             let _ = links.can.set_faults(&FaultConfig::default());
