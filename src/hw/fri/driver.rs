@@ -269,6 +269,14 @@ pub enum FriEvent {
         /// The latest `sendSeqCount`.
         latest_seq: u16,
     },
+    /// After a silence the robot's sequence numbers started over (FRI reopened on
+    /// the KRC); counting goes on from `seq`.
+    SequenceRestarted {
+        /// The first accepted `sendSeqCount` of the new count.
+        seq: u16,
+        /// The latest `sendSeqCount` of the old count.
+        latest_seq: u16,
+    },
     /// No measurement for `timeout_s`: motion aborted, holding.
     MeasurementLate {
         /// Time since the last measurement (s).
@@ -521,6 +529,8 @@ pub struct DriverCore {
     last: Option<MeasurementDatagram>,
     last_rx: Option<Duration>,
     late: bool,
+    /// While late: the last stale sequence number, the first of a possible restart.
+    restart_seq: Option<u16>,
     motion: Motion,
     commanding: bool,
     commanded_rad: [f64; JOINTS],
@@ -544,6 +554,7 @@ impl DriverCore {
             last: None,
             last_rx: None,
             late: false,
+            restart_seq: None,
             motion: Motion::Mirror,
             commanding: false,
             commanded_rad: [0.0; JOINTS],
@@ -639,18 +650,35 @@ impl DriverCore {
         let gap = match &self.last {
             Some(prev) => {
                 let gap = seq_ahead(seq, prev.send_seq_count);
-                if gap == 0 || gap > u16::MAX / 2 {
+                let stale = gap == 0 || gap > u16::MAX / 2;
+                // After a silence (the link is late: motion aborted, holding), two
+                // consecutive "old" numbers are the robot's counter starting over
+                // (FRI closed and reopened on the KRC), not stale datagrams.
+                let restarted = stale
+                    && self.late
+                    && self.restart_seq.is_some_and(|r| seq == r.wrapping_add(1));
+                if restarted {
+                    self.push(FriEvent::SequenceRestarted {
+                        seq,
+                        latest_seq: prev.send_seq_count,
+                    });
+                    self.restart_seq = None;
+                    1
+                } else if stale {
+                    self.restart_seq = self.late.then_some(seq);
                     self.counters.stale_measurements += 1;
                     self.push(FriEvent::StaleMeasurement {
                         seq,
                         latest_seq: prev.send_seq_count,
                     });
                     return None;
+                } else {
+                    gap
                 }
-                gap
             }
             None => 1,
         };
+        self.restart_seq = None;
         // The period travels as f32; FRI periods are whole milliseconds, so round to µs.
         let dt_s = (f64::from(m.interface.desired_msr_sample_time_s) * 1e6).round() / 1e6;
         if !(dt_s > 0.0 && dt_s <= 1.0) {
@@ -1791,6 +1819,35 @@ mod tests {
         assert!(d
             .take_events()
             .contains(&FriEvent::LinkRestored { after_s: 0.088 }));
+    }
+
+    /// FRI closed and reopened on the KRC: after the silence the robot counts from
+    /// 1 again. Two consecutive numbers start the new count; one old datagram alone,
+    /// or old numbers while the link is live, stay stale.
+    #[test]
+    fn the_robot_s_counter_starting_over_after_a_silence_is_followed() {
+        let mut d = core();
+        let q0 = [0.0f32; JOINTS];
+        let m = |seq| measurement(seq, FriState::Monitor, Quality::Ok, q0);
+        for seq in 30_000..30_005 {
+            assert!(d
+                .on_measurement(&m(seq), u32::from(seq - 29_999) * MS)
+                .is_some());
+        }
+        // While live, old numbers are stale, however consecutive.
+        assert!(d.on_measurement(&m(10), 6 * MS).is_none());
+        assert!(d.on_measurement(&m(11), 7 * MS).is_none());
+        // Silence, then the new count.
+        assert!(d.check_late(2000 * MS));
+        assert!(d.on_measurement(&m(1), 2100 * MS).is_none());
+        let c = d.on_measurement(&m(2), 2101 * MS).expect("answered");
+        assert_eq!(c.refl_seq_count, 2);
+        assert!(d.on_measurement(&m(3), 2102 * MS).is_some());
+        assert!(d.take_events().contains(&FriEvent::SequenceRestarted {
+            seq: 2,
+            latest_seq: 30_004
+        }));
+        assert_eq!(d.status().last_seq, Some(3));
     }
 
     #[test]
