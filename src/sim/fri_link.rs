@@ -86,6 +86,25 @@ fn bind_local() -> std::io::Result<UdpSocket> {
     Ok(socket)
 }
 
+/// A relay thread at the device cycle's real-time priority: every datagram
+/// received on `socket` goes to `forward` with its sender, until `stop`.
+fn relay(
+    name: &'static str,
+    socket: Arc<UdpSocket>,
+    stop: Arc<AtomicBool>,
+    mut forward: impl FnMut(&[u8], SocketAddr) + Send + 'static,
+) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        crate::hw::realtime::request_device_cycle_priority(name);
+        let mut buf = [0u8; 2048];
+        while !stop.load(Ordering::Relaxed) {
+            if let Ok((n, from)) = socket.recv_from(&mut buf) {
+                forward(&buf[..n], from);
+            }
+        }
+    })
+}
+
 impl FaultyLink {
     /// Starts a relay to the PC's driver at `pc_addr` on loopback ports of its own;
     /// faults are drawn from a generator seeded with `seed`.
@@ -106,29 +125,21 @@ impl FaultyLink {
         // Robot -> PC: measurements, and now and then a forged one from a third host.
         // Every hop of the robot's cycle is as urgent as the threads either side.
         {
-            let (robot_side, pc_side, shared, stop) = (
-                robot_side.clone(),
-                pc_side.clone(),
-                shared.clone(),
-                stop.clone(),
-            );
+            let (pc_side, shared) = (pc_side.clone(), shared.clone());
             let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0053_706f_6f66);
-            link.threads.push(std::thread::spawn(move || {
-                crate::hw::realtime::request_device_cycle_priority("FRI link to the PC");
-                let mut buf = [0u8; 2048];
-                while !stop.load(Ordering::Relaxed) {
-                    let Ok((n, from)) = robot_side.recv_from(&mut buf) else {
-                        continue;
-                    };
-                    let _ = pc_side.send_to(&buf[..n], pc_addr);
+            link.threads.push(relay(
+                "FRI link to the PC",
+                robot_side.clone(),
+                stop.clone(),
+                move |datagram, from| {
+                    let _ = pc_side.send_to(datagram, pc_addr);
                     let spoof = {
                         let mut s = lock(&shared);
                         s.robot = Some(from);
                         s.counts.measurements += 1;
                         rng.gen_bool(s.faults.spoof_probability)
                     };
-                    if let (true, Ok(mut forged)) = (spoof, MeasurementDatagram::decode(&buf[..n]))
-                    {
+                    if let (true, Ok(mut forged)) = (spoof, MeasurementDatagram::decode(datagram)) {
                         for q in &mut forged.data.msr_jnt_pos {
                             *q += 0.2;
                         }
@@ -137,52 +148,41 @@ impl FaultyLink {
                             lock(&shared).counts.spoofed += 1;
                         }
                     }
-                }
-            }));
+                },
+            ));
         }
         // PC -> robot: answers, some withheld; on time straight to the robot, late
         // ones through the delivery thread.
         {
-            let (robot_side, pc_side, shared, stop) = (
-                robot_side.clone(),
-                pc_side.clone(),
-                shared.clone(),
-                stop.clone(),
-            );
+            let (robot_side, shared) = (robot_side.clone(), shared.clone());
             let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5769_7468);
-            link.threads.push(std::thread::spawn(move || {
-                crate::hw::realtime::request_device_cycle_priority("FRI link to the robot");
-                let mut buf = [0u8; 2048];
-                while !stop.load(Ordering::Relaxed) {
-                    let Ok((n, from)) = pc_side.recv_from(&mut buf) else {
-                        continue;
-                    };
+            link.threads.push(relay(
+                "FRI link to the robot",
+                pc_side.clone(),
+                stop.clone(),
+                move |datagram, from| {
                     if from != pc_addr {
-                        continue;
+                        return;
                     }
                     let (delay, robot) = {
                         let mut s = lock(&shared);
                         if rng.gen_bool(s.faults.withhold_probability) {
                             s.counts.withheld += 1;
-                            continue;
+                            return;
                         }
                         (Duration::from_secs_f64(s.faults.answer_delay_s), s.robot)
                     };
                     if !delay.is_zero() {
                         lock(&shared).counts.delayed += 1;
-                        if to_robot
-                            .send((Instant::now() + delay, buf[..n].to_vec()))
-                            .is_err()
-                        {
-                            return;
-                        }
+                        // The delivery thread is gone only when the link stops.
+                        let _ = to_robot.send((Instant::now() + delay, datagram.to_vec()));
                     } else if let Some(robot) = robot {
-                        if robot_side.send_to(&buf[..n], robot).is_ok() {
+                        if robot_side.send_to(datagram, robot).is_ok() {
                             lock(&shared).counts.answers += 1;
                         }
                     }
-                }
-            }));
+                },
+            ));
         }
         // Delivery of late answers to the robot when each is due (in order).
         {

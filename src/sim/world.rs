@@ -211,6 +211,11 @@ impl SimWorld {
         Ok(self)
     }
 
+    /// Whether the objects are prepared for the lift test ([`SimWorld::with_physics`]).
+    pub fn has_physics(&self) -> bool {
+        self.physics.is_some()
+    }
+
     /// Whether the object nearest the palm comes up when the hand closes at
     /// `base_from_palm` with `spread_rad` and the arm lifts: the physics lift test
     /// lifts it (held, or slipped within the hand). `None` when the world has no
@@ -771,7 +776,9 @@ impl crate::sim::puck::Feel for HandContact {
         let same_closing = self.closed.as_ref().is_some_and(|(at, _, spread)| {
             *spread == spread_rad && crate::geometry::pose_error(at, &palm).0 < 1e-4
         });
-        if !same_closing {
+        if !same_closing && !world.has_physics() {
+            self.closed = Some((palm, Hold::Known(c.force_closure), spread_rad));
+        } else if !same_closing {
             // The lift test takes tens of milliseconds, longer than a CAN reply
             // may: it runs beside the emulator, at the lowest priority.
             let (send, answer) = std::sync::mpsc::channel();
