@@ -620,7 +620,6 @@ fn finite(pose: &Pose, what: &'static str) -> Result<(), PhysicsError> {
     }
 }
 
-/// The flex motor's closing speed (rad/s) and torque (N m) of `finger`.
 /// A stopped finger's torque on its distal joint (N m): the motor's through the
 /// distal train, at most the finger's rated load at the fingertip (spec: 2 kg per
 /// finger; the tip 59 mm beyond the distal axis).
@@ -650,6 +649,7 @@ fn press(world: &mut World, fingers: &[FingerBody], hand: &HandModel) {
     }
 }
 
+/// The flex motor's closing speed (rad/s) and torque (N m) of `finger`.
 fn flex_drive(finger: &Finger) -> (f64, f64) {
     (finger.flex_velocity_rad_s, finger.flex_effort_nm)
 }

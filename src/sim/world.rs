@@ -728,6 +728,30 @@ enum Hold {
 }
 
 impl Hold {
+    /// Whether the grasp closed at `closed_at` holds: by the lift test when `world`
+    /// has physics, else (or should the test not start) by `static_rule` at once.
+    /// The lift test takes tens of milliseconds, longer than a CAN reply may: it
+    /// runs beside the emulator, at the lowest priority.
+    fn start(world: Arc<SimWorld>, closed_at: Pose, spread_rad: f64, static_rule: bool) -> Hold {
+        if !world.has_physics() {
+            return Hold::Known(static_rule);
+        }
+        let (send, answer) = std::sync::mpsc::channel();
+        let test = std::thread::Builder::new()
+            .name("lift-test".into())
+            .spawn(move || {
+                crate::hw::realtime::lower_thread_priority();
+                send.send(world.lift_holds(&closed_at, spread_rad))
+            });
+        match test {
+            Ok(_) => Hold::Pending {
+                answer,
+                static_rule,
+            },
+            Err(_) => Hold::Known(static_rule),
+        }
+    }
+
     /// Whether the grasp holds, as far as known now: the emulator never waits for
     /// the lift test (a CAN reply must not), and until it answers (tens of
     /// milliseconds after closing, long before the arm lifts) the object stays.
@@ -776,26 +800,8 @@ impl crate::sim::puck::Feel for HandContact {
         let same_closing = self.closed.as_ref().is_some_and(|(at, _, spread)| {
             *spread == spread_rad && crate::geometry::pose_error(at, &palm).0 < 1e-4
         });
-        if !same_closing && !world.has_physics() {
-            self.closed = Some((palm, Hold::Known(c.force_closure), spread_rad));
-        } else if !same_closing {
-            // The lift test takes tens of milliseconds, longer than a CAN reply
-            // may: it runs beside the emulator, at the lowest priority.
-            let (send, answer) = std::sync::mpsc::channel();
-            let closed_at = c.base_from_palm;
-            let test = std::thread::Builder::new()
-                .name("lift-test".into())
-                .spawn(move || {
-                    crate::hw::realtime::lower_thread_priority();
-                    send.send(world.lift_holds(&closed_at, spread_rad))
-                });
-            let hold = match test {
-                Ok(_) => Hold::Pending {
-                    answer,
-                    static_rule: c.force_closure,
-                },
-                Err(_) => Hold::Known(c.force_closure),
-            };
+        if !same_closing {
+            let hold = Hold::start(world, c.base_from_palm, spread_rad, c.force_closure);
             self.closed = Some((palm, hold, spread_rad));
         }
         c.stall_rad
