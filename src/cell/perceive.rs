@@ -24,8 +24,8 @@ use crate::cloud::PointCloud;
 use crate::config::CellConfig;
 use crate::geometry::Pose;
 use crate::ipc::{
-    monotonic_now_ns, wait_any, CloudTopic, Domain, FitStatus, Fits, ModelFit, Protocol, Stage,
-    TrialRequest, Wakeable, MAX_FITS,
+    monotonic_now_ns, wait_any, CloudTopic, Domain, FitStatus, Fits, ModelFit, Point, Protocol,
+    Stage, TrialRequest, Wakeable, MAX_FITS, MAX_SEEN_POINTS,
 };
 use crate::register::{perceive, ModelSet, RegisterParams, RegistrationStatus};
 use std::collections::HashMap;
@@ -151,7 +151,14 @@ pub fn perceive_trial(
         register_ms = perception.register.total_ms,
         "perceived"
     );
-    Ok(Fits::new(trial_id, monotonic_now_ns(), &fits)?)
+    // The seen surface, on the planner's grid (coarser if it would not fit).
+    let seen = crate::cloud::voxel::voxel_downsample_to(
+        &perception.object_base,
+        crate::plan::SeenSurfaceOptions::default().voxel_m,
+        MAX_SEEN_POINTS,
+    );
+    let seen: Vec<Point> = seen.points.iter().map(|&p| Point::from(p)).collect();
+    Ok(Fits::new(trial_id, monotonic_now_ns(), &fits)?.with_seen(&seen)?)
 }
 
 /// Runs the perception stage until SIGTERM/SIGINT.

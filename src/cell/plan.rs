@@ -11,6 +11,7 @@
 use super::notify::{self, Watchdog};
 use super::{stop_requested, ByTrial, CellError, TICK};
 use crate::category::CategoryDb;
+use crate::cloud::PointCloud;
 use crate::config::CellConfig;
 use crate::execute::{validate_grasp, ExecutionRequest, ExecutorConfig, SafetyCheck, SafetyLimits};
 use crate::geometry::PoseJson;
@@ -19,7 +20,12 @@ use crate::ipc::{
     monotonic_now_ns, wait_any, FailureCause, FitStatus, Fits, GraspPlan, JointStates, Protocol,
     Stage, TrialRequest, Wakeable,
 };
-use crate::plan::{plan, Kernel, ModelFit, PlanOptions, PlannedGrasp, Reachability};
+use crate::plan::refine::{refine_over_db, DbProblem, SimRefineOptions};
+use crate::plan::{
+    plan_with, Kernel, ModelFit, PlanOptions, PlannedGrasp, Reachability, SeenSurface,
+    SeenSurfaceOptions,
+};
+use crate::robot::hand::HandModel;
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, Robot};
 use std::collections::HashMap;
@@ -131,10 +137,14 @@ pub fn trial_options(
     Ok(options)
 }
 
-/// Plans trial `request` from `fits`: the grasp to execute, or why there is none.
+/// Plans trial `request` from `fits` for the cell's `robot` and `hand`: the grasp to
+/// execute, or why there is none. In the cell's protocol the open hand must clear
+/// the seen surface the fits carry ([`crate::plan::seen`]); the paper's protocol
+/// plans as published, without it.
 pub fn plan_trial(
     config: &CellConfig,
     robot: &Robot,
+    hand: &HandModel,
     dbs: &mut Databases,
     request: &TrialRequest,
     fits: &Fits,
@@ -146,7 +156,6 @@ pub fn plan_trial(
     let category = request.category().map_err(|e| other(e.to_string()))?;
     let task = request.task().map_err(|e| other(e.to_string()))?;
     let method = request.method().map_err(|e| other(e.to_string()))?;
-    let best_single = method == "best-single";
     let db = dbs.get(category).map_err(|e| other(e.to_string()))?;
     let model_fits = planner_fits(db, fits).map_err(|e| other(e.to_string()))?;
     if model_fits.is_empty() {
@@ -159,30 +168,47 @@ pub fn plan_trial(
         .map_err(|e| other(e.to_string()))?;
     let protocol = request.protocol().map_err(|e| other(e.to_string()))?;
     let options = trial_options(config, db, method, protocol).map_err(other)?;
-    let outcome = plan(
-        &model_fits,
-        &grasps,
-        task,
-        &options,
-        Some(robot as &dyn Reachability),
-    )
-    .map_err(|e| other(e.to_string()))?;
-    let grasp = if best_single {
-        outcome.best_single.grasp
-    } else if method == "laplace-sim" {
-        refine_trial(
-            config,
-            robot,
-            db,
-            &model_fits,
-            &grasps,
-            task,
-            &options,
-            outcome.plan.grasp,
-        )
-        .map_err(other)?
-    } else {
-        outcome.plan.grasp
+    let seen_points = fits.seen().map_err(|e| other(e.to_string()))?;
+    let seen_cloud = PointCloud::from_points(seen_points.iter().map(|&p| p.into()).collect());
+    let seen = match protocol {
+        Protocol::Cell if !seen_points.is_empty() => Some(
+            SeenSurface::new(
+                hand,
+                &seen_cloud,
+                SeenSurfaceOptions::along_approach(&options, true),
+            )
+            .map_err(|e| other(e.to_string()))?,
+        ),
+        _ => None,
+    };
+    let reach = Some(robot as &dyn Reachability);
+    let outcome = plan_with(&model_fits, &grasps, task, &options, reach, seen.as_ref())
+        .map_err(|e| other(e.to_string()))?;
+    let grasp = match method {
+        "best-single" => outcome.best_single.grasp,
+        // Beyond the paper: the Laplace grasp refined in the grasp simulator over
+        // every fitted model, approaching to contact as the executor does.
+        "laplace-sim" => {
+            let problem = DbProblem {
+                db,
+                fits: &model_fits,
+                grasps: &grasps,
+                task,
+                options: &options,
+                hand,
+                reach,
+                seen: seen.as_ref(),
+                table_height_m: Some(config.table.height_m),
+            };
+            refine_over_db(
+                &problem,
+                &outcome.plan.grasp,
+                &SimRefineOptions::for_cell(config),
+            )
+            .map_err(|e| other(e.to_string()))?
+            .grasp
+        }
+        _ => outcome.plan.grasp,
     };
     if !grasp.reachable {
         let why = grasp
@@ -195,44 +221,6 @@ pub fn plan_trial(
         });
     }
     Ok(grasp)
-}
-
-/// `laplace-sim`: the Laplace grasp refined in the grasp simulator over every fitted
-/// model ([`crate::plan::refine::refine_over_db`]), approaching to contact as the
-/// executor does.
-#[allow(clippy::too_many_arguments)]
-fn refine_trial(
-    config: &CellConfig,
-    robot: &Robot,
-    db: &CategoryDb,
-    fits: &[ModelFit],
-    grasps: &[crate::plan::ExampleGrasp],
-    task: &str,
-    options: &PlanOptions,
-    start: PlannedGrasp,
-) -> Result<PlannedGrasp, String> {
-    use crate::plan::refine::{refine_over_db, SimRefineOptions};
-    let hand = crate::robot::hand::HandModel::from_description(
-        &robot.description,
-        &config.robot.palm_link,
-        &config.robot.urdf,
-    )
-    .map_err(|e| e.to_string())?;
-    let refined = refine_over_db(
-        db,
-        fits,
-        grasps,
-        task,
-        options,
-        &hand,
-        Some(robot as &dyn Reachability),
-        None,
-        &start,
-        Some(config.table.height_m),
-        &SimRefineOptions::for_cell(config),
-    )
-    .map_err(|e| e.to_string())?;
-    Ok(refined.grasp)
 }
 
 /// Picks joint solutions for `grasp` whose motions from the arm at `current` the
@@ -332,6 +320,11 @@ pub fn plan_message(
 /// Runs the plan stage until SIGTERM/SIGINT; databases come from `db_dir`.
 pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), CellError> {
     let robot = Arc::new(Robot::load(config)?);
+    let hand = HandModel::from_description(
+        &robot.description,
+        &config.robot.palm_link,
+        &config.robot.urdf,
+    )?;
     // The executor's own checks and settings: a plan is published only when the
     // executor will accept its motions.
     let safety = SafetyCheck::new(Arc::clone(&robot), SafetyLimits::from_cell(config, &robot));
@@ -370,11 +363,12 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
             let trial_id = request.trial_id;
             let method = request.method().unwrap_or("?").to_string();
             let started = std::time::Instant::now();
-            let planned =
-                plan_trial(config, &robot, &mut dbs, &request, &fits).and_then(|mut grasp| {
+            let planned = plan_trial(config, &robot, &hand, &mut dbs, &request, &fits).and_then(
+                |mut grasp| {
                     executable_joints(&robot, &safety, &motions, &mut grasp, &arm_now)
                         .map(|()| grasp)
-                });
+                },
+            );
             let msg = match planned {
                 Ok(grasp) => plan_message(trial_id, &method, &grasp)?,
                 Err(failure) => {
@@ -499,6 +493,80 @@ mod tests {
         let failure = executable_joints(&robot, &check, &motions, &mut low, &home).unwrap_err();
         assert_eq!(failure.cause, FailureCause::Reachability, "{failure:?}");
         assert!(low.joints.is_none());
+    }
+
+    #[test]
+    fn the_cell_plans_clear_of_the_seen_surface_and_the_papers_protocol_ignores_it() {
+        let config = CellConfig::load(Path::new(crate::config::DEFAULT_CONFIG_PATH)).unwrap();
+        let robot = crate::robot::shipped_robot();
+        let hand = crate::quality::autograsp::tests::hand_of(&robot);
+        let mut dbs = Databases::new(Path::new("db"));
+        let on_table = crate::geometry::pose_from_params(&[0.6, 0.0, 0.0, 0.0, 0.0, 0.3]);
+        let fits: Vec<crate::ipc::ModelFit> = (0..3)
+            .map(|i| crate::ipc::ModelFit::new(i, FitStatus::Converged, &on_table, 1e-5, 1e-5, 0.9))
+            .collect();
+        let fits = Fits::new(7, 0, &fits).unwrap();
+        let request = |protocol| {
+            TrialRequest::new(7, 0, "mug", "top", "laplace")
+                .unwrap()
+                .with_protocol(protocol)
+        };
+        let free = plan_trial(
+            &config,
+            &robot,
+            &hand,
+            &mut dbs,
+            &request(Protocol::Cell),
+            &fits,
+        )
+        .unwrap();
+        // Seen points filling a 10 cm cube around the free plan's pre-grasp.
+        let c = free.pregrasp_pose.translation.vector;
+        let mut wall = Vec::new();
+        for i in 0..16 {
+            for j in 0..16 {
+                for k in 0..16 {
+                    let d = |n: i32| (n as f32 - 7.5) * 0.0066;
+                    wall.push(crate::ipc::Point::new(
+                        c.x as f32 + d(i),
+                        c.y as f32 + d(j),
+                        c.z as f32 + d(k),
+                    ));
+                }
+            }
+        }
+        let blocked = fits.with_seen(&wall).unwrap();
+        let seen_cloud =
+            PointCloud::from_points(blocked.seen().unwrap().iter().map(|&p| p.into()).collect());
+        let options = SeenSurfaceOptions {
+            contact_stops_approach: true,
+            ..SeenSurfaceOptions::default()
+        };
+        let seen = SeenSurface::new(&hand, &seen_cloud, options).unwrap();
+        assert!(
+            seen.intrusion(&free.pose, free.spread_rad).is_some(),
+            "test setup: the points block the free plan's approach"
+        );
+        match plan_trial(
+            &config,
+            &robot,
+            &hand,
+            &mut dbs,
+            &request(Protocol::Cell),
+            &blocked,
+        ) {
+            Ok(clear) => assert_eq!(seen.intrusion(&clear.pose, clear.spread_rad), None),
+            Err(failure) => assert_eq!(failure.cause, FailureCause::Reachability),
+        }
+        let paper = Protocol::PaperRobot;
+        let as_published =
+            plan_trial(&config, &robot, &hand, &mut dbs, &request(paper), &blocked).unwrap();
+        let unblocked =
+            plan_trial(&config, &robot, &hand, &mut dbs, &request(paper), &fits).unwrap();
+        assert_eq!(
+            as_published.pose, unblocked.pose,
+            "the paper plans without it"
+        );
     }
 
     #[test]

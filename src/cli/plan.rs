@@ -12,7 +12,7 @@ use crate::geometry::parse_numbers;
 use crate::geometry::{params_from_pose, Pose};
 use crate::plan::category::example_grasps;
 use crate::plan::input::{fits_input, read_fits_input, read_grasps, FitsInput, Unregistered};
-use crate::plan::refine::{refine_over_db, Refined, SimRefineOptions};
+use crate::plan::refine::{refine_over_db, DbProblem, Refined, SimRefineOptions};
 use crate::plan::{
     plan_with, FitWeight, Kernel, PaperProtocol, PlanMode, PlanOptions, PlanOutcome, PlannedGrasp,
     Reachability, SeenSurface, SeenSurfaceOptions,
@@ -181,6 +181,8 @@ pub struct PlanArgs {
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "simulation")]
     pub paper: Option<PaperProtocol>,
     /// With --cloud: do not treat the seen points as an obstacle of the open hand.
+    /// (They are one at the pre-grasp, where the approach to contact starts, and,
+    /// with --paper, which closes the hand where planned, along the whole approach.)
     #[arg(long)]
     pub no_seen_surface: bool,
     /// Also refine the plan in the grasp simulator over every fitted model
@@ -231,28 +233,6 @@ struct PlanReport<'a> {
     laplace_sim: Option<Refined>,
     #[serde(flatten)]
     outcome: PlanOutcome,
-}
-
-/// `laplace-sim`: `start` refined in the grasp simulator over the models of `fits`,
-/// approaching to contact as `cell`'s executor does.
-#[allow(clippy::too_many_arguments)]
-pub fn refine(
-    cell: &CellConfig,
-    hand: &HandModel,
-    db: &CategoryDb,
-    fits: &[crate::plan::ModelFit],
-    grasps: &[crate::plan::ExampleGrasp],
-    task: &str,
-    options: &PlanOptions,
-    reach: Option<&dyn Reachability>,
-    seen: Option<&SeenSurface>,
-    start: &PlannedGrasp,
-) -> anyhow::Result<Refined> {
-    let sim = SimRefineOptions::for_cell(cell);
-    let table = Some(cell.table.height_m);
-    Ok(refine_over_db(
-        db, fits, grasps, task, options, hand, reach, seen, start, table, &sim,
-    )?)
 }
 
 /// Loads a category database for planning, refusing one without models.
@@ -422,10 +402,7 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
             SeenSurface::new(
                 &hand,
                 c,
-                SeenSurfaceOptions {
-                    approach_m: options.pregrasp_offset_m,
-                    ..SeenSurfaceOptions::default()
-                },
+                SeenSurfaceOptions::along_approach(&options, args.paper.is_none()),
             )
         })
         .transpose()?;
@@ -435,18 +412,21 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     let refined = match (args.refine_sim, &db) {
         (false, _) => None,
         (true, None) => anyhow::bail!("--refine-sim needs --db (the models' meshes)"),
-        (true, Some(db)) => Some(refine(
-            &cell,
-            &hand,
-            db,
-            &fits,
-            &grasps,
-            &args.task,
-            &options,
-            reach,
-            seen.as_ref(),
-            &outcome.plan.grasp,
-        )?),
+        (true, Some(db)) => {
+            let problem = DbProblem {
+                db,
+                fits: &fits,
+                grasps: &grasps,
+                task: &args.task,
+                options: &options,
+                hand: &hand,
+                reach,
+                seen: seen.as_ref(),
+                table_height_m: Some(cell.table.height_m),
+            };
+            let sim = SimRefineOptions::for_cell(&cell);
+            Some(refine_over_db(&problem, &outcome.plan.grasp, &sim)?)
+        }
     };
     if let (Some(out), Some(robot)) = (&args.out, &robot) {
         let (grasp, method) = match &refined {

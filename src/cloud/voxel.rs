@@ -71,9 +71,43 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f64) -> PointCloud {
     out
 }
 
+/// Downsamples `cloud` on cells of `voxel_m` (m), doubled until at most `max_points`
+/// remain (at least one point per cell of the final size). With a non-positive or
+/// non-finite `voxel_m` or no `max_points`, the result of [`voxel_downsample`].
+pub fn voxel_downsample_to(cloud: &PointCloud, voxel_m: f64, max_points: usize) -> PointCloud {
+    let mut voxel = voxel_m;
+    loop {
+        let out = voxel_downsample(cloud, voxel);
+        if out.len() <= max_points || max_points == 0 || !(voxel > 0.0 && voxel.is_finite()) {
+            return out;
+        }
+        voxel *= 2.0;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_cap_coarsens_the_grid_until_the_points_fit() {
+        let line: Vec<Point3<f32>> = (0..1000)
+            .map(|i| Point3::new(i as f32 * 1e-3, 0.0, 0.0))
+            .collect();
+        let cloud = PointCloud::from_points(line);
+        assert_eq!(voxel_downsample_to(&cloud, 0.004, 1000).len(), 250);
+        let capped = voxel_downsample_to(&cloud, 0.004, 100);
+        assert!(
+            capped.len() <= 100 && capped.len() >= 50,
+            "{}",
+            capped.len()
+        );
+        assert_eq!(
+            voxel_downsample_to(&cloud, 0.0, 10).len(),
+            1000,
+            "no grid, no cap"
+        );
+    }
 
     #[test]
     fn one_centroid_per_cell_nan_ignored() {

@@ -650,17 +650,18 @@ pub fn run_novel(
                         .map_err(|e| object_fail(e.to_string()))?
                         .with_protocol(protocol);
                     // 3. Planning as the plan stage does it.
-                    let planned = plan_trial(cell.config, &cell.robot, dbs, &request, &fits)
-                        .and_then(|mut g| {
-                            executable_joints(
-                                &cell.robot,
-                                &safety,
-                                &motions,
-                                &mut g,
-                                &crate::cell::harness::HOME_JOINTS_RAD,
-                            )
-                            .map(|()| g)
-                        });
+                    let planned =
+                        plan_trial(cell.config, &cell.robot, cell.hand, dbs, &request, &fits)
+                            .and_then(|mut g| {
+                                executable_joints(
+                                    &cell.robot,
+                                    &safety,
+                                    &motions,
+                                    &mut g,
+                                    &crate::cell::harness::HOME_JOINTS_RAD,
+                                )
+                                .map(|()| g)
+                            });
                     let plan_ms = started.elapsed().as_secs_f64() * 1e3;
                     let (attempt, palm) = match planned {
                         Err(failure) => (

@@ -23,6 +23,9 @@ pub const MAX_CLOUD_HEIGHT: u32 = 480;
 pub const MAX_CLOUD_POINTS: usize = (MAX_CLOUD_WIDTH * MAX_CLOUD_HEIGHT) as usize;
 /// Most model fits in one [`Fits`] message.
 pub const MAX_FITS: usize = 32;
+/// Most points of the seen surface in one [`Fits`] message (the object's segmented
+/// points, thinned: a mug seen from one side keeps about 1,000 on a 4 mm grid).
+pub const MAX_SEEN_POINTS: usize = 4096;
 /// Capacity in bytes of a [`Name`] (category, task, method).
 pub const NAME_CAPACITY: usize = 32;
 /// Arm joints of the KUKA LBR4+ (A1, A2, E1, A3, A4, A5, A6).
@@ -751,7 +754,9 @@ impl ModelFit {
     }
 }
 
-/// Perception -> planner: the fits of every model of the category (up to 32).
+/// Perception -> planner: the fits of every model of the category (up to 32), and
+/// the surface they were fitted to (the object's segmented points in the robot base
+/// frame, thinned; up to [`MAX_SEEN_POINTS`]), which the open hand must not enter.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("graspcell::ipc::Fits")]
@@ -761,8 +766,9 @@ pub struct Fits {
     /// Monotonic time the fits were computed (ns).
     pub stamp_ns: u64,
     count: u32,
-    reserved: u32,
+    seen_count: u32,
     models: [ModelFit; MAX_FITS],
+    seen: [Point; MAX_SEEN_POINTS],
 }
 message!(Fits, Topic::Fits);
 
@@ -772,8 +778,9 @@ impl Default for Fits {
             trial_id: 0,
             stamp_ns: 0,
             count: 0,
-            reserved: 0,
+            seen_count: 0,
             models: [ModelFit::default(); MAX_FITS],
+            seen: [Point::default(); MAX_SEEN_POINTS],
         }
     }
 }
@@ -809,6 +816,34 @@ impl Fits {
             });
         }
         Ok(&self.models[..count])
+    }
+
+    /// These fits with the seen surface `points` (base frame, at most
+    /// [`MAX_SEEN_POINTS`]).
+    pub fn with_seen(mut self, points: &[Point]) -> Result<Fits, IpcError> {
+        if points.len() > MAX_SEEN_POINTS {
+            return Err(IpcError::TooMany {
+                field: "seen points",
+                count: points.len(),
+                max: MAX_SEEN_POINTS,
+            });
+        }
+        self.seen_count = points.len() as u32;
+        self.seen[..points.len()].copy_from_slice(points);
+        Ok(self)
+    }
+
+    /// The seen surface (checked count; empty when perception sent none).
+    pub fn seen(&self) -> Result<&[Point], IpcError> {
+        let count = self.seen_count as usize;
+        if count > MAX_SEEN_POINTS {
+            return Err(IpcError::TooMany {
+                field: "seen points",
+                count,
+                max: MAX_SEEN_POINTS,
+            });
+        }
+        Ok(&self.seen[..count])
     }
 }
 
@@ -1445,6 +1480,32 @@ mod tests {
     }
 
     #[test]
+    fn fits_carry_the_seen_surface_up_to_capacity() {
+        let fits = Fits::new(3, 4, &[]).unwrap();
+        assert!(
+            fits.seen().unwrap().is_empty(),
+            "none unless perception sends it"
+        );
+        let points: Vec<Point> = (0..MAX_SEEN_POINTS)
+            .map(|i| Point::new(i as f32 * 1e-3, 0.1, 0.2))
+            .collect();
+        let full = fits.with_seen(&points).unwrap();
+        assert_eq!(full.seen().unwrap(), &points[..]);
+        let more = [points.clone(), vec![Point::default()]].concat();
+        assert!(matches!(
+            fits.with_seen(&more),
+            Err(IpcError::TooMany { count, .. }) if count == MAX_SEEN_POINTS + 1
+        ));
+        let mut corrupt = full;
+        corrupt.seen_count = MAX_SEEN_POINTS as u32 + 1;
+        assert!(corrupt
+            .seen()
+            .unwrap_err()
+            .to_string()
+            .contains("seen points"));
+    }
+
+    #[test]
     fn received_fits_and_joint_states_with_nan_are_refused() {
         let pose = pose_from_params(&[0.1, 0.2, 0.3, 0.0, 0.0, 1.0]);
         let good = ModelFit::new(0, FitStatus::Converged, &pose, 1e-6, 1e-7, 0.9);
@@ -1499,7 +1560,8 @@ mod tests {
         // The protocol code (4 bytes) and padding to the 8-byte alignment.
         assert_eq!(size_of::<TrialRequest>(), 16 + 3 * 32 + 8);
         assert_eq!(size_of::<ModelFit>(), 8 + 128 + 24);
-        assert_eq!(size_of::<Fits>(), 24 + 32 * 160);
+        // The fits, then the seen surface (12-byte points; 8-byte alignment).
+        assert_eq!(size_of::<Fits>(), 24 + 32 * 160 + MAX_SEEN_POINTS * 12);
         assert_eq!(size_of::<JointState>(), 11 * 8);
         assert_eq!(size_of::<GraspPlan>(), 16 + 256 + 112 + 8 + 8 + 32 + 8);
         // The header's stamp sits at byte 8 (the socket benchmark relies on it).

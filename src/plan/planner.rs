@@ -24,7 +24,10 @@
 //!    robot: the collision-free IK attempt nearest the pose), the other optima and
 //!    the starts (best objective first), probes from the optimum along each world axis
 //!    and about each of the palm's own axes (1, 3, 9, 27 cm or 0.1, 0.3, 0.9, 2.7 rad,
-//!    nearest first), and the runs' intermediate best points; plus the last reachable
+//!    nearest first), and the runs' intermediate best points; when none of those is
+//!    reachable, with a budget of their own, the optimum turned about the object's
+//!    vertical axis (15 to 60 degrees either way) and, when it approaches from the
+//!    side, tilted to approach from above (15 to 45 degrees); plus the last reachable
 //!    point on the segment from the best of those toward the unconstrained optimum
 //!    (bisection, in the chart centred on the reachable point).
 //! 3. From each of them, a constrained Nelder–Mead run (1 mm / 1e-3 tolerances,
@@ -422,6 +425,9 @@ struct Problem<'a> {
     objective: Objective,
     grasps: &'a [ExampleGrasp],
     options: &'a PlanOptions,
+    /// The object's vertical axis (x, y in the base frame): the mean origin of the
+    /// fitted models.
+    axis_xy: [f64; 2],
 }
 
 impl Problem<'_> {
@@ -596,10 +602,18 @@ pub fn plan_with(
     }
     super::objective::check_value("plan pregrasp_offset_m", options.pregrasp_offset_m, false)?;
     let objective = Objective::new(fits, grasps, task, &options.kernel, &options.weights)?;
+    let n = fits.len().max(1) as f64;
+    let axis_xy = [0, 1].map(|k| {
+        fits.iter()
+            .map(|f| f.base_from_model.translation.vector[k])
+            .sum::<f64>()
+            / n
+    });
     let problem = Problem {
         objective,
         grasps,
         options,
+        axis_xy,
     };
     let z_min = options.z_min_m;
     let starts: Vec<Pose> = problem
@@ -695,6 +709,58 @@ pub fn plan_with(
 /// Restarts of a constrained run from its own result.
 const CONSTRAINED_RESTARTS: usize = 2;
 
+/// Turns of an unreachable optimum about the object's vertical axis (rad): 0 and 15
+/// to 60 degrees either way.
+const AXIS_TURNS_RAD: [f64; 9] = [0.0, -0.26, 0.26, -0.52, 0.52, -0.79, 0.79, -1.05, 1.05];
+
+/// Tilts of an unreachable optimum's approach downward (rad): 0 to 45 degrees.
+const APPROACH_TILTS_RAD: [f64; 4] = [0.0, 0.26, 0.52, 0.79];
+
+/// The grasp `pose` from other sides of the object whose vertical axis passes
+/// through `axis_xy`: turned about that axis, and, when it approaches from the side
+/// (a horizontal side grasp of a short object puts the arm's wrist on the table),
+/// tilted to approach from above about the point of its approach axis nearest the
+/// object's axis, so that it still aims at the object. Nearest first, without
+/// `pose` itself.
+fn turned_and_tilted(pose: &Pose, axis_xy: [f64; 2]) -> Vec<Pose> {
+    let z = nalgebra::Vector3::z();
+    let approach = pose.rotation * z;
+    let side = z.cross(&approach);
+    let horizontal = side.norm() > 0.5;
+    // The point of the approach axis nearest the object's axis (in plan view).
+    let p = pose.translation.vector;
+    let flat = nalgebra::Vector2::new(approach.x, approach.y);
+    let toward = nalgebra::Vector2::new(axis_xy[0] - p.x, axis_xy[1] - p.y);
+    let along = if flat.norm_squared() > 1e-9 {
+        toward.dot(&flat) / flat.norm_squared()
+    } else {
+        0.0
+    };
+    let centre = p + approach * along;
+    let about = |centre: nalgebra::Vector3<f64>, rotation: Pose| {
+        Translation3::from(centre) * rotation * Translation3::from(-centre)
+    };
+    let mut out: Vec<(f64, Pose)> = Vec::new();
+    for &tilt in &APPROACH_TILTS_RAD {
+        if tilt != 0.0 && !horizontal {
+            continue;
+        }
+        let tilted = about(centre, Pose::rotation(side.normalize() * tilt)) * pose;
+        for &turn in &AXIS_TURNS_RAD {
+            if tilt == 0.0 && turn == 0.0 {
+                continue;
+            }
+            let axis = nalgebra::Vector3::new(axis_xy[0], axis_xy[1], 0.0);
+            out.push((
+                tilt.abs() + turn.abs(),
+                about(axis, Pose::rotation(z * turn)) * tilted,
+            ));
+        }
+    }
+    out.sort_by(|a, b| a.0.total_cmp(&b.0));
+    out.into_iter().map(|(_, p)| p).collect()
+}
+
 /// Axis probes around an unreachable optimum: multiples of 1 cm and 0.1 rad.
 const PROBE_SCALES: [f64; 4] = [1.0, 3.0, 9.0, 27.0];
 
@@ -752,11 +818,11 @@ fn best_reachable(
     groups.push(trail);
     let mut checked: Vec<Pose> = vec![pose];
     let mut feasible: Vec<(Point, Feasible)> = Vec::new();
-    let mut budget = options.feasibility_budget;
-    'search: for group in groups {
-        for point in group {
+    let mut find = |points: Vec<Point>, budget: usize, feasible: &mut Vec<(Point, Feasible)>| {
+        let mut budget = budget;
+        for point in points {
             if feasible.len() >= options.constrained_starts || budget == 0 {
-                break 'search;
+                return;
             }
             // Skip near-duplicates of points already checked.
             if checked.iter().any(|c| {
@@ -773,6 +839,17 @@ fn best_reachable(
                 feasible.push((point, f));
             }
         }
+    };
+    find(groups.concat(), options.feasibility_budget, &mut feasible);
+    if feasible.is_empty() {
+        // Nothing near it is reachable: the optimum from other sides of the object,
+        // with a budget of their own.
+        let turned: Vec<Point> = turned_and_tilted(&pose, problem.axis_xy)
+            .into_iter()
+            .map(|p| problem.point(above(p, z_min)))
+            .collect();
+        let budget = turned.len();
+        find(turned, budget, &mut feasible);
     }
     feasible.sort_by(|a, b| a.0.g.total_cmp(&b.0.g));
     let (first, first_f) = *feasible.first()?;
@@ -919,6 +996,7 @@ fn repair_single(
         objective,
         grasps: alone,
         options,
+        axis_xy: problem.axis_xy,
     };
     let start = single.point(above(pose, options.z_min_m));
     let found = best_reachable(
@@ -941,6 +1019,33 @@ fn repair_single(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_side_grasp_is_tried_from_other_sides_and_from_above_still_aiming_at_the_object() {
+        // Approaching along +x, palm 5 cm before an object whose axis is at (0.65, 0).
+        let side = pose_from_params(&[0.6, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
+        let variants = turned_and_tilted(&side, [0.65, 0.0]);
+        assert_eq!(variants.len(), 4 * 9 - 1);
+        let aim = |p: &Pose| {
+            // Distance from the object's axis point at the grasp's height to the
+            // approach line, and the approach's downward slope.
+            let a = p.rotation * nalgebra::Vector3::z();
+            let c = nalgebra::Vector3::new(0.65, 0.0, 0.05) - p.translation.vector;
+            ((c - a * c.dot(&a)).norm(), -a.z)
+        };
+        for v in &variants {
+            let (miss, down) = aim(v);
+            assert!(miss < 0.05, "{miss}");
+            assert!(down > -1e-9, "never tilted upward: {down}");
+        }
+        let steepest = variants.iter().map(|v| aim(v).1).fold(0.0, f64::max);
+        assert!((steepest - 0.79f64.sin()).abs() < 1e-6, "{steepest}");
+        // Nearest first: the first variants are the smallest changes.
+        assert!(aim(&variants[0]).1 < 1e-9 || aim(&variants[0]).1 < 0.26);
+        // A top grasp is only turned.
+        let top = pose_from_params(&[0.65, 0.0, 0.2, std::f64::consts::PI, 0.0, 0.0]);
+        assert_eq!(turned_and_tilted(&top, [0.65, 0.0]).len(), 8);
+    }
     use crate::geometry::{params_from_pose, pose_from_params, wrap_angle, PoseParams};
     use crate::plan::test_support::grasp;
     use crate::robot::Unreachable;

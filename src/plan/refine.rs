@@ -214,18 +214,26 @@ fn moved(start: &Pose, spread_rad: f64, x: &[f64; 5]) -> (Pose, f64) {
     (pose, spread_rad + x[4])
 }
 
-/// Refines `start` (see the module doc). `log_objective` gives eq. 2 at a pose for
-/// the report; `reach` and `seen` are the feasibility checks (the start's own
-/// feasibility is taken as given); `pregrasp_offset_m` places the pre-grasp;
-/// `spread_limits_rad` bound the spread.
-#[allow(clippy::too_many_arguments)]
+/// What a refined grasp must stay: reachable with its pre-grasp, and clear of the
+/// seen surface (each when given).
+#[derive(Clone, Copy)]
+pub struct Feasibility<'a> {
+    /// The arm's reach.
+    pub reach: Option<&'a dyn Reachability>,
+    /// The surface the camera saw.
+    pub seen: Option<&'a SeenSurface<'a>>,
+    /// Distance of the pre-grasp behind the grasp (m).
+    pub pregrasp_offset_m: f64,
+}
+
+/// Refines `start` (see the module doc) on `models` for `hand`, keeping it within
+/// `feasible` (the start's own feasibility is taken as given). `log_objective`
+/// gives eq. 2 at a pose for the report; the hand's spread limits bound the spread.
 pub fn refine_in_sim(
     start: &PlannedGrasp,
     hand: &HandModel,
     models: &[SimModel],
-    reach: Option<&dyn Reachability>,
-    seen: Option<&SeenSurface>,
-    pregrasp_offset_m: f64,
+    feasibility: &Feasibility,
     log_objective: &dyn Fn(&Pose) -> f64,
     options: &SimRefineOptions,
 ) -> Result<Refined, PlanError> {
@@ -268,15 +276,7 @@ pub fn refine_in_sim(
     // The candidate `y` as a planned grasp, when feasible (seeded from `near`).
     let feasible_at = |y: &[f64; 5], near: &PlannedGrasp| {
         let (pose, spread) = moved(&start.pose, start.spread_rad, y);
-        feasible(
-            near,
-            pose,
-            spread,
-            reach,
-            seen,
-            pregrasp_offset_m,
-            log_objective,
-        )
+        feasible(near, pose, spread, feasibility, log_objective)
     };
     scanned.sort_by(|a, b| b.1.total_cmp(&a.1));
     for (y, eps) in scanned {
@@ -333,27 +333,52 @@ pub fn refine_in_sim(
     })
 }
 
+/// A planning problem over a category database, as `laplace-sim` refines it.
+#[derive(Clone, Copy)]
+pub struct DbProblem<'a> {
+    /// The category database (the models' meshes).
+    pub db: &'a CategoryDb,
+    /// The models' registrations.
+    pub fits: &'a [ModelFit],
+    /// The example grasps of the fitted models.
+    pub grasps: &'a [super::ExampleGrasp],
+    /// The task.
+    pub task: &'a str,
+    /// The planner's options (kernel, fit weights, pre-grasp offset).
+    pub options: &'a super::PlanOptions,
+    /// The hand.
+    pub hand: &'a HandModel,
+    /// The arm's reach (None: not checked).
+    pub reach: Option<&'a dyn Reachability>,
+    /// The seen surface (None: not checked).
+    pub seen: Option<&'a SeenSurface<'a>>,
+    /// The cell's table height (base frame, m): each model meets it where its fit
+    /// puts it (the fit taken as upright), not at its own base, so a model
+    /// registered higher or lower than its training stance still has the table
+    /// where the real object stands; `None` keeps the database's table in each
+    /// model's frame.
+    pub table_height_m: Option<f64>,
+}
+
 /// `laplace-sim` over a category database: `start` refined on the meshes of the
-/// models of `fits`, weighted by `options`' fit weights; the report's objective is
-/// eq. 2 of `grasps` for `task`. `table_height_m` is the cell's table (base frame):
-/// each model meets it where its fit puts it (the fit taken as upright), not at its
-/// own base, so a model registered higher or lower than its training stance still
-/// has the table where the real object stands; `None` keeps the database's table
-/// in each model's frame.
-#[allow(clippy::too_many_arguments)]
+/// models of `problem`'s fits, weighted by its options' fit weights; the report's
+/// objective is eq. 2 of its grasps for its task.
 pub fn refine_over_db(
-    db: &CategoryDb,
-    fits: &[ModelFit],
-    grasps: &[super::ExampleGrasp],
-    task: &str,
-    options: &super::PlanOptions,
-    hand: &HandModel,
-    reach: Option<&dyn Reachability>,
-    seen: Option<&SeenSurface>,
+    problem: &DbProblem,
     start: &PlannedGrasp,
-    table_height_m: Option<f64>,
     sim: &SimRefineOptions,
 ) -> Result<Refined, PlanError> {
+    let DbProblem {
+        db,
+        fits,
+        grasps,
+        task,
+        options,
+        hand,
+        reach,
+        seen,
+        table_height_m,
+    } = *problem;
     let objects = fits
         .iter()
         .map(|f| {
@@ -379,13 +404,16 @@ pub fn refine_over_db(
     let models = SimModel::of_fits(fits, &objects, &options.weights);
     let objective =
         super::objective::Objective::new(fits, grasps, task, &options.kernel, &options.weights)?;
+    let feasibility = Feasibility {
+        reach,
+        seen,
+        pregrasp_offset_m: options.pregrasp_offset_m,
+    };
     refine_in_sim(
         start,
         hand,
         &models,
-        reach,
-        seen,
-        options.pregrasp_offset_m,
+        &feasibility,
         &|p| objective.log_value_at(p),
         sim,
     )
@@ -397,15 +425,17 @@ fn feasible(
     near: &PlannedGrasp,
     pose: Pose,
     spread_rad: f64,
-    reach: Option<&dyn Reachability>,
-    seen: Option<&SeenSurface>,
-    pregrasp_offset_m: f64,
+    feasibility: &Feasibility,
     log_objective: &dyn Fn(&Pose) -> f64,
 ) -> Option<PlannedGrasp> {
-    if seen.is_some_and(|s| s.intrusion(&pose, spread_rad).is_some()) {
+    let reach = feasibility.reach;
+    if feasibility
+        .seen
+        .is_some_and(|s| s.intrusion(&pose, spread_rad).is_some())
+    {
         return None;
     }
-    let pregrasp = pregrasp_pose(&pose, pregrasp_offset_m);
+    let pregrasp = pregrasp_pose(&pose, feasibility.pregrasp_offset_m);
     let (joints, pregrasp_joints) = match reach {
         None => (None, None),
         Some(r) => {
@@ -490,13 +520,16 @@ mod tests {
                 max_evaluations: 10,
                 ..SimRefineOptions::default()
             };
+            let feasibility = Feasibility {
+                reach: Some(&robot),
+                seen: None,
+                pregrasp_offset_m: options.pregrasp_offset_m,
+            };
             let r = refine_in_sim(
                 &out.plan.grasp,
                 &hand,
                 &models,
-                Some(&robot),
-                None,
-                options.pregrasp_offset_m,
+                &feasibility,
                 &|p| objective.log_value_at(p),
                 &refine,
             )

@@ -33,16 +33,37 @@ pub struct SeenSurfaceOptions {
     pub step_m: f64,
     /// Voxel size of the thinned cloud (m).
     pub voxel_m: f64,
+    /// The approach stops at first contact (the executor's approach to contact), so
+    /// only its start, the pre-grasp, must be clear; otherwise the whole approach
+    /// down to the grasp (the paper's execution, which closes where planned).
+    pub contact_stops_approach: bool,
 }
 
 impl Default for SeenSurfaceOptions {
-    /// 3 mm tolerance, a 0.1 m approach in 1 cm steps, 4 mm voxels.
+    /// 3 mm tolerance, a 0.1 m approach in 1 cm steps, 4 mm voxels, the whole
+    /// approach checked.
     fn default() -> Self {
         SeenSurfaceOptions {
             tolerance_m: 0.003,
             approach_m: 0.10,
             step_m: 0.01,
             voxel_m: 0.004,
+            contact_stops_approach: false,
+        }
+    }
+}
+
+impl SeenSurfaceOptions {
+    /// The default settings with the approach of `plan` (its pre-grasp offset), for
+    /// an execution that stops at first contact or not.
+    pub fn along_approach(
+        plan: &super::PlanOptions,
+        contact_stops_approach: bool,
+    ) -> SeenSurfaceOptions {
+        SeenSurfaceOptions {
+            approach_m: plan.pregrasp_offset_m,
+            contact_stops_approach,
+            ..SeenSurfaceOptions::default()
         }
     }
 }
@@ -131,7 +152,8 @@ impl<'a> SeenSurface<'a> {
     }
 
     /// The first intrusion of the hand open at `spread_rad` into the seen points,
-    /// at the grasp `palm` or along its approach; `None` when it stays clear.
+    /// at the grasp `palm` or along its approach (at its start only when contact
+    /// stops the approach); `None` when it stays clear.
     pub fn intrusion(&self, palm: &Pose, spread_rad: f64) -> Option<Intrusion> {
         let o = &self.options;
         let hand = HandPose {
@@ -144,12 +166,13 @@ impl<'a> SeenSurface<'a> {
             palm * Translation3::new(0.0, 0.0, -d)
         };
         let pre = back(steps);
+        let first = if o.contact_stops_approach { steps } else { 0 };
         for (link, link_pose) in self.hand.link_poses(&hand) {
             for (link_from_shape, shape) in &link.shapes {
                 let local = link_pose * link_from_shape;
                 // The box swept by the shape along the approach (a translation).
                 let swept = shape
-                    .compute_aabb(&(palm * local))
+                    .compute_aabb(&(back(first) * local))
                     .merged(&shape.compute_aabb(&(pre * local)));
                 let inside: Vec<&Point3<f64>> = self
                     .points
@@ -159,7 +182,7 @@ impl<'a> SeenSurface<'a> {
                 if inside.is_empty() {
                     continue;
                 }
-                for k in 0..=steps {
+                for k in first..=steps {
                     let world_from_shape = back(k) * local;
                     let mut count = 0;
                     let mut depth: f64 = 0.0;
@@ -247,5 +270,25 @@ pub(crate) mod tests {
         assert!(hit.behind_grasp_m > 0.0, "{hit:?}");
         let empty = PointCloud::from_points(Vec::new());
         assert!(SeenSurface::new(&hand, &empty, SeenSurfaceOptions::default()).is_err());
+    }
+
+    #[test]
+    fn when_contact_stops_the_approach_only_its_start_must_be_clear() {
+        let robot = shipped_robot();
+        let hand = crate::quality::autograsp::tests::hand_of(&robot);
+        let stopping = SeenSurfaceOptions {
+            contact_stops_approach: true,
+            ..SeenSurfaceOptions::default()
+        };
+        let seen = SeenSurface::new(&hand, &cylinder_cloud(), stopping).unwrap();
+        let approaching_x =
+            |x: f64| pose_from_params(&[x, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
+        // Planned 2 cm into the cylinder: the palm will stop at its surface.
+        assert_eq!(seen.intrusion(&approaching_x(0.58), 0.0), None);
+        // Planned so deep that the pre-grasp, 10 cm back, starts inside it.
+        let hit = seen
+            .intrusion(&approaching_x(0.7), 0.0)
+            .expect("the approach starts inside the cylinder");
+        assert!((hit.behind_grasp_m - 0.1).abs() < 1e-9, "{hit:?}");
     }
 }

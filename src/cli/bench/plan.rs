@@ -1,9 +1,10 @@
 //! `cell bench plan`: grasp planning time per kernel, with reachability.
 
 use crate::cli::emit;
-use crate::cli::plan::{load_db, refine};
+use crate::cli::plan::load_db;
 use crate::config::CellConfig;
 use crate::plan::category::example_grasps;
+use crate::plan::refine::{refine_over_db, DbProblem, SimRefineOptions};
 use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
 use crate::plan::{plan, Kernel, PlanOptions, PlanOutcome, Reachability};
 use crate::robot::hand::HandModel;
@@ -164,18 +165,18 @@ fn sim_bench(
         });
         plain.push(t);
         let start = Instant::now();
-        let refined = refine(
-            cell,
-            &hand,
-            &db,
-            &fits,
-            &grasps,
+        let problem = DbProblem {
+            db: &db,
+            fits: &fits,
+            grasps: &grasps,
             task,
-            &options,
-            Some(robot as &dyn Reachability),
-            None,
-            &out.plan.grasp,
-        )?;
+            options: &options,
+            hand: &hand,
+            reach: Some(robot as &dyn Reachability),
+            seen: None,
+            table_height_m: Some(cell.table.height_m),
+        };
+        let refined = refine_over_db(&problem, &out.plan.grasp, &SimRefineOptions::for_cell(cell))?;
         let rt = start.elapsed().as_secs_f64() * 1e3;
         refine_ms.push(rt);
         total.push(t + rt);
