@@ -35,6 +35,75 @@ pub enum PlyError {
     },
 }
 
+/// Why a [`Ply`] cannot be encoded ([`encode`]); each names the element, property
+/// or header line concerned.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum EncodeError {
+    /// A comment or `obj_info` line holds a line break.
+    #[error("header line {line:?} contains a line break")]
+    LineBreak {
+        /// The line.
+        line: String,
+    },
+    /// An element name is empty or holds whitespace.
+    #[error("element name {element:?} is not one word")]
+    ElementName {
+        /// The element's name.
+        element: String,
+    },
+    /// A property name is empty or holds whitespace.
+    #[error("element `{element}` property {property:?}: name is not one word")]
+    PropertyName {
+        /// The element.
+        element: String,
+        /// The property's name.
+        property: String,
+    },
+    /// A column's row count differs from its element's.
+    #[error("element `{element}` property {property:?}: {rows} rows, element has {count}")]
+    RowCount {
+        /// The element.
+        element: String,
+        /// The property.
+        property: String,
+        /// Rows in the column.
+        rows: usize,
+        /// Rows the element declares.
+        count: usize,
+    },
+    /// A list's count type is a floating-point type.
+    #[error("element `{element}` property {property:?}: list count type must be an integer type")]
+    ListCountType {
+        /// The element.
+        element: String,
+        /// The property.
+        property: String,
+    },
+    /// A list's offsets do not match its items.
+    #[error("element `{element}` property {property:?}: list offsets do not match its items")]
+    ListOffsets {
+        /// The element.
+        element: String,
+        /// The property.
+        property: String,
+    },
+    /// A list is longer than its count type holds.
+    #[error(
+        "element `{element}` property {property:?}: a list of {items} items does not fit a {} length",
+        .count_type.name()
+    )]
+    ListTooLong {
+        /// The element.
+        element: String,
+        /// The property.
+        property: String,
+        /// Items in the list.
+        items: usize,
+        /// The count type.
+        count_type: ScalarType,
+    },
+}
+
 /// The body encoding named by the header's `format` line (always version 1.0).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Format {
@@ -887,7 +956,7 @@ fn fixed_row_size(element: &Element) -> Option<usize> {
 /// whose row count differs from its element's, list offsets that do not match their
 /// items, a list longer than its count type holds, or a name or comment that would
 /// break the header.
-pub fn encode(ply: &Ply) -> Result<Vec<u8>, String> {
+pub fn encode(ply: &Ply) -> Result<Vec<u8>, EncodeError> {
     check_consistent(ply)?;
     let mut header = format!("ply\nformat {} 1.0\n", ply.format.keyword());
     for comment in &ply.comments {
@@ -1009,7 +1078,7 @@ fn max_list_length(count_type: ScalarType) -> usize {
 }
 
 /// Checks that `ply` can be encoded (see [`encode`]).
-fn check_consistent(ply: &Ply) -> Result<(), String> {
+fn check_consistent(ply: &Ply) -> Result<(), EncodeError> {
     let is_word = |s: &str| !s.is_empty() && !s.chars().any(|c| c.is_whitespace());
     if let Some(line) = ply
         .comments
@@ -1017,23 +1086,30 @@ fn check_consistent(ply: &Ply) -> Result<(), String> {
         .chain(&ply.obj_info)
         .find(|l| l.contains(['\n', '\r']))
     {
-        return Err(format!("header line {line:?} contains a line break"));
+        return Err(EncodeError::LineBreak { line: line.clone() });
     }
     for element in &ply.elements {
         if !is_word(&element.name) {
-            return Err(format!("element name {:?} is not one word", element.name));
+            return Err(EncodeError::ElementName {
+                element: element.name.clone(),
+            });
         }
         for property in &element.properties {
-            let what = format!("element `{}` property {:?}", element.name, property.name);
+            let element_name = || element.name.clone();
+            let property_name = || property.name.clone();
             if !is_word(&property.name) {
-                return Err(format!("{what}: name is not one word"));
+                return Err(EncodeError::PropertyName {
+                    element: element_name(),
+                    property: property_name(),
+                });
             }
             if property.column.rows() != element.count {
-                return Err(format!(
-                    "{what}: {} rows, element has {}",
-                    property.column.rows(),
-                    element.count
-                ));
+                return Err(EncodeError::RowCount {
+                    element: element_name(),
+                    property: property_name(),
+                    rows: property.column.rows(),
+                    count: element.count,
+                });
             }
             if let Column::List {
                 count_type,
@@ -1042,20 +1118,28 @@ fn check_consistent(ply: &Ply) -> Result<(), String> {
             } = &property.column
             {
                 if !count_type.is_integer() {
-                    return Err(format!("{what}: list count type must be an integer type"));
+                    return Err(EncodeError::ListCountType {
+                        element: element_name(),
+                        property: property_name(),
+                    });
                 }
                 if starts.first() != Some(&0)
                     || starts.last() != Some(&items.len())
                     || starts.windows(2).any(|w| w[1] < w[0])
                 {
-                    return Err(format!("{what}: list offsets do not match its items"));
+                    return Err(EncodeError::ListOffsets {
+                        element: element_name(),
+                        property: property_name(),
+                    });
                 }
                 let max = max_list_length(*count_type);
                 if let Some(n) = starts.windows(2).map(|w| w[1] - w[0]).find(|&n| n > max) {
-                    return Err(format!(
-                        "{what}: a list of {n} items does not fit a {} length",
-                        count_type.name()
-                    ));
+                    return Err(EncodeError::ListTooLong {
+                        element: element_name(),
+                        property: property_name(),
+                        items: n,
+                        count_type: *count_type,
+                    });
                 }
             }
         }
@@ -1405,7 +1489,16 @@ mod tests {
     fn encode_rejects_inconsistent_data() {
         let mut ply = sample(Format::Ascii);
         ply.elements[0].count = 3;
-        assert!(encode(&ply).unwrap_err().contains("2 rows, element has 3"));
+        let e = encode(&ply).unwrap_err();
+        assert!(matches!(
+            e,
+            EncodeError::RowCount {
+                rows: 2,
+                count: 3,
+                ..
+            }
+        ));
+        assert!(e.to_string().contains("2 rows, element has 3"), "{e}");
         let mut ply = sample(Format::Ascii);
         ply.elements[0].properties[8].column = Column::List {
             count_type: ScalarType::Char,
@@ -1414,9 +1507,10 @@ mod tests {
         };
         assert!(encode(&ply)
             .unwrap_err()
+            .to_string()
             .contains("does not fit a char length"));
         let mut ply = sample(Format::Ascii);
         ply.comments.push("two\nlines".into());
-        assert!(encode(&ply).unwrap_err().contains("line break"));
+        assert!(encode(&ply).unwrap_err().to_string().contains("line break"));
     }
 }

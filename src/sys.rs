@@ -238,12 +238,16 @@ mod tests {
         assert_eq!(contain_panic(|| 3), Ok(3));
         assert_eq!(
             contain_panic(|| -> u8 { panic!("boom") }),
-            Err("boom".to_string())
+            Err(Panicked {
+                message: "boom".to_string()
+            })
         );
         let n = 7;
         assert_eq!(
             contain_panic(|| -> u8 { panic!("boom {n}") }),
-            Err("boom 7".to_string())
+            Err(Panicked {
+                message: "boom 7".to_string()
+            })
         );
     }
 
@@ -310,11 +314,19 @@ thread_local! {
     static CONTAINING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
 }
 
+/// A panic that [`contain_panic`] caught; shows as the panic's message.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{message}")]
+pub struct Panicked {
+    /// The panic's message ("a panic without a message" when it had none).
+    pub message: String,
+}
+
 /// Runs `f`, turning a panic inside it into an error with the panic's message
 /// instead of a crash, for a dependency known to panic on some inputs. The panic
 /// hook stays silent for a contained panic (on this thread only); every other panic
 /// prints as before.
-pub fn contain_panic<T>(f: impl FnOnce() -> T) -> Result<T, String> {
+pub fn contain_panic<T>(f: impl FnOnce() -> T) -> Result<T, Panicked> {
     static HOOK: std::sync::Once = std::sync::Once::new();
     HOOK.call_once(|| {
         let previous = std::panic::take_hook();
@@ -327,11 +339,11 @@ pub fn contain_panic<T>(f: impl FnOnce() -> T) -> Result<T, String> {
     let was = CONTAINING.with(|c| c.replace(true));
     let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
     CONTAINING.with(|c| c.set(was));
-    outcome.map_err(|payload| {
-        payload
+    outcome.map_err(|payload| Panicked {
+        message: payload
             .downcast_ref::<&str>()
             .map(|s| s.to_string())
             .or_else(|| payload.downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "a panic without a message".to_string())
+            .unwrap_or_else(|| "a panic without a message".to_string()),
     })
 }

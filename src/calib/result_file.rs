@@ -78,9 +78,10 @@ impl HandEyeResult {
             problem,
         };
         pose_from_json(&result.base_from_camera, "base_from_camera")
-            .map_err(|p| bad("base_from_camera", p))?;
+            .map_err(|p| bad("base_from_camera", p.to_string()))?;
         if let Some(y) = &result.flange_from_target {
-            pose_from_json(y, "flange_from_target").map_err(|p| bad("flange_from_target", p))?;
+            pose_from_json(y, "flange_from_target")
+                .map_err(|p| bad("flange_from_target", p.to_string()))?;
         }
         if let Some(v) = result.target_in_flange_m.iter().find(|v| !v.is_finite()) {
             return Err(bad(

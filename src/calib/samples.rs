@@ -1,7 +1,7 @@
 //! Calibration samples and the sample file (`calib/samples-DATE.json`).
 
 use super::CalibError;
-use crate::geometry::{Pose, PoseJson};
+use crate::geometry::{GeometryError, Pose, PoseJson};
 use nalgebra::{Point3, Quaternion, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -152,12 +152,12 @@ impl SampleFile {
             let json: SampleJson =
                 serde_json::from_value(value).map_err(|e| bad(index, e.to_string()))?;
             let base_from_flange = pose_from_json(&json.base_from_flange, "base_from_flange")
-                .map_err(|p| bad(index, p))?;
+                .map_err(|p| bad(index, p.to_string()))?;
             let sample = match (json.camera_from_target, json.target_point_camera_m) {
                 (Some(pose), None) => Sample::Pose(PoseSample {
                     base_from_flange,
                     camera_from_target: pose_from_json(&pose, "camera_from_target")
-                        .map_err(|p| bad(index, p))?,
+                        .map_err(|p| bad(index, p.to_string()))?,
                 }),
                 (None, Some(p)) => {
                     if let Some(v) = p.iter().find(|v| !v.is_finite()) {
@@ -257,29 +257,74 @@ fn json_message(e: &serde_json::Error, text: &str) -> String {
     message
 }
 
+/// Why a pose of a samples or result file is refused; each names the pose.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub(super) enum BadPose {
+    /// Not finite, or the wrong number of values.
+    #[error(transparent)]
+    Geometry(#[from] GeometryError),
+    /// `quat_xyzw` is not a unit quaternion.
+    #[error("{what}: quat_xyzw {quat_xyzw:?} has norm {norm:.4}, not 1: is it a unit quaternion in x y z w order?")]
+    NotUnit {
+        /// The pose.
+        what: String,
+        /// The quaternion given.
+        quat_xyzw: [f64; 4],
+        /// Its norm.
+        norm: f64,
+    },
+    /// `rpy` and `quat_xyzw` are both given and name different rotations.
+    #[error(
+        "{what}: rpy {rpy:?} and quat_xyzw {quat_xyzw:?} disagree by {:.3}°: give one, or check the quaternion order (x y z w) and that rpy is fixed-axis X-Y-Z in radians",
+        .angle_rad.to_degrees()
+    )]
+    Disagree {
+        /// The pose.
+        what: String,
+        /// The roll, pitch, yaw given (rad).
+        rpy: [f64; 3],
+        /// The quaternion given.
+        quat_xyzw: [f64; 4],
+        /// The angle between the two rotations (rad).
+        angle_rad: f64,
+    },
+    /// Neither `rpy` nor `quat_xyzw`.
+    #[error("{what}: no rotation (give rpy or quat_xyzw)")]
+    NoRotation {
+        /// The pose.
+        what: String,
+    },
+}
+
 /// A validated pose: finite, with a rotation, a unit quaternion, `rpy` and
 /// `quat_xyzw` agreeing when both are given. The error names `what`.
-pub(super) fn pose_from_json(json: &PoseJson, what: &str) -> Result<Pose, String> {
-    let pose = json.to_pose(what).map_err(|e| e.to_string())?;
+pub(super) fn pose_from_json(json: &PoseJson, what: &str) -> Result<Pose, BadPose> {
+    let pose = json.to_pose(what)?;
     if let Some(q) = json.quat_xyzw {
         let norm = Quaternion::new(q[3], q[0], q[1], q[2]).norm();
         if (norm - 1.0).abs() > QUAT_NORM_TOLERANCE {
-            return Err(format!(
-                "{what}: quat_xyzw {q:?} has norm {norm:.4}, not 1: is it a unit quaternion in x y z w order?"
-            ));
+            return Err(BadPose::NotUnit {
+                what: what.to_string(),
+                quat_xyzw: q,
+                norm,
+            });
         }
         if let Some(r) = json.rpy {
             let from_rpy = UnitQuaternion::from_euler_angles(r[0], r[1], r[2]);
             let angle = from_rpy.angle_to(&pose.rotation);
             if angle > RPY_QUAT_TOLERANCE_RAD {
-                return Err(format!(
-                    "{what}: rpy {r:?} and quat_xyzw {q:?} disagree by {:.3}°: give one, or check the quaternion order (x y z w) and that rpy is fixed-axis X-Y-Z in radians",
-                    angle.to_degrees()
-                ));
+                return Err(BadPose::Disagree {
+                    what: what.to_string(),
+                    rpy: r,
+                    quat_xyzw: q,
+                    angle_rad: angle,
+                });
             }
         }
     } else if json.rpy.is_none() {
-        return Err(format!("{what}: no rotation (give rpy or quat_xyzw)"));
+        return Err(BadPose::NoRotation {
+            what: what.to_string(),
+        });
     }
     Ok(pose)
 }

@@ -356,19 +356,28 @@ struct LogDisk {
 
 impl LogDisk {
     /// Mounts a 16 MiB tmpfs at `dir` (needs CAP_SYS_ADMIN).
-    fn mount(dir: &Path) -> Result<LogDisk, String> {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    fn mount(dir: &Path) -> Result<LogDisk, CellError> {
+        std::fs::create_dir_all(dir).map_err(|source| CellError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
         let out = std::process::Command::new("mount")
             .args(["-t", "tmpfs", "-o", "size=16m,mode=0700", "graspcell-chaos"])
             .arg(dir)
             .output()
-            .map_err(|e| format!("mount: {e}"))?;
+            .map_err(|e| CellError::Process {
+                name: "mount".to_string(),
+                detail: e.to_string(),
+            })?;
         if !out.status.success() {
-            return Err(format!(
-                "mount -t tmpfs on {}: {}",
-                dir.display(),
-                String::from_utf8_lossy(&out.stderr).trim()
-            ));
+            return Err(CellError::Process {
+                name: "mount".to_string(),
+                detail: format!(
+                    "-t tmpfs on {}: {}",
+                    dir.display(),
+                    String::from_utf8_lossy(&out.stderr).trim()
+                ),
+            });
         }
         Ok(LogDisk {
             mount: dir.to_path_buf(),
@@ -581,7 +590,10 @@ fn set_link_faults(cell: &Cell, fault: &Fault) -> Result<(), CellError> {
         answer_delay_s: fault.delay_s.unwrap_or(0.0),
         spoof_probability: if *kind == FaultKind::FriSpoof { p } else { 0.0 },
     };
-    links.fri.set_faults(fri).map_err(CellError::Invalid)?;
+    links
+        .fri
+        .set_faults(fri)
+        .map_err(|e| CellError::Invalid(e.to_string()))?;
     Ok(())
 }
 

@@ -275,7 +275,7 @@ struct Concluded {
 }
 
 impl Logger {
-    fn attempt(&self, trial: &Trial) -> Result<Attempt, String> {
+    fn attempt(&self, trial: &Trial) -> Result<Attempt, CellError> {
         let Some(plan) = &trial.plan else {
             // The executor stopped before the log saw a plan (it refused one the
             // log missed, e.g. sent before the request reached the log).
@@ -283,7 +283,7 @@ impl Logger {
                 Some(end) => Ok(Attempt::Stopped {
                     kind: error_kind(end.error_code).to_string(),
                 }),
-                None => Err("no plan".into()),
+                None => Err(CellError::Invalid("no plan".into())),
             };
         };
         let failure = plan.failure().unwrap_or(IpcCause::Other);
@@ -299,7 +299,7 @@ impl Logger {
             });
         }
         let Some(end) = &trial.end else {
-            return Err("no execution end".into());
+            return Err(CellError::Invalid("no execution end".into()));
         };
         if !matches!(end.phase(), Ok(Phase::Done)) {
             let kind = error_kind(end.error_code);
@@ -315,10 +315,7 @@ impl Logger {
         }
         let base_from_palm = match trial.closing_joints {
             Some(q) => self.robot.arm().palm(&q),
-            None => plan
-                .base_from_palm
-                .to_pose("plan palm")
-                .map_err(|e| e.to_string())?,
+            None => plan.base_from_palm.to_pose("plan palm")?,
         };
         Ok(Attempt::Executed {
             base_from_palm,
@@ -354,7 +351,7 @@ impl Logger {
             Ending::Camera(fault) => return died(camera_note(*fault)),
             Ending::Reported => {}
         }
-        let attempt = self.attempt(trial).map_err(CellError::Invalid)?;
+        let attempt = self.attempt(trial)?;
         match self.options.observer {
             ObserverKind::Terminal => {
                 eprintln!("trial {}: {:?}; grade it", trial.request.trial_id, attempt);

@@ -40,7 +40,7 @@ pub enum CloudError {
         /// The file that was to be written.
         path: PathBuf,
         /// What is wrong with the cloud.
-        problem: String,
+        problem: InvalidCloud,
     },
     /// A mesh to sample is invalid.
     #[error(transparent)]
@@ -53,6 +53,40 @@ pub enum CloudError {
         /// Their total area (m^2).
         area_m2: f64,
     },
+}
+
+/// Why a cloud cannot be encoded as it is.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum InvalidCloud {
+    /// `width x height` is not the number of points.
+    #[error("width {width} x height {height} = {cells}, but it has {points} points")]
+    Grid {
+        /// The cloud's width.
+        width: u32,
+        /// The cloud's height.
+        height: u32,
+        /// `width x height`.
+        cells: u64,
+        /// The number of points.
+        points: usize,
+    },
+    /// Normals, but not one per point.
+    #[error("{normals} normals for {points} points")]
+    Normals {
+        /// The number of normals.
+        normals: usize,
+        /// The number of points.
+        points: usize,
+    },
+    /// The PLY encoder refused the cloud's columns (boxed: it is large, and rare).
+    #[error(transparent)]
+    Ply(Box<crate::ply::EncodeError>),
+}
+
+impl From<crate::ply::EncodeError> for InvalidCloud {
+    fn from(e: crate::ply::EncodeError) -> InvalidCloud {
+        InvalidCloud::Ply(Box::new(e))
+    }
 }
 
 impl From<crate::ply::PlyError> for CloudError {
@@ -144,23 +178,22 @@ pub fn write_cloud(
 
 /// Checks that a cloud is consistent: `width x height` points, and one normal per
 /// point when it has normals; says what is wrong otherwise.
-pub fn check_shape(cloud: &PointCloud) -> Result<(), String> {
+pub fn check_shape(cloud: &PointCloud) -> Result<(), InvalidCloud> {
     let cells = cloud.width as u64 * cloud.height as u64;
     if cells != cloud.points.len() as u64 {
-        return Err(format!(
-            "width {} x height {} = {cells}, but it has {} points",
-            cloud.width,
-            cloud.height,
-            cloud.points.len()
-        ));
+        return Err(InvalidCloud::Grid {
+            width: cloud.width,
+            height: cloud.height,
+            cells,
+            points: cloud.points.len(),
+        });
     }
     if let Some(normals) = &cloud.normals {
         if normals.len() != cloud.points.len() {
-            return Err(format!(
-                "{} normals for {} points",
-                normals.len(),
-                cloud.points.len()
-            ));
+            return Err(InvalidCloud::Normals {
+                normals: normals.len(),
+                points: cloud.points.len(),
+            });
         }
     }
     Ok(())

@@ -7,7 +7,7 @@
 //! `COUNT`s (other fields are skipped); `DATA binary_compressed` is refused with a
 //! clear error. `VIEWPOINT` is checked but not kept: points stay in the file's frame.
 
-use super::io::{check_shape, CloudEncoding, CloudError};
+use super::io::{check_shape, CloudEncoding, CloudError, InvalidCloud};
 use super::PointCloud;
 use crate::ply::push_float_text;
 use nalgebra::{Point3, Vector3};
@@ -475,7 +475,7 @@ pub fn parse_pcd(bytes: &[u8], source: &Path) -> Result<PointCloud, CloudError> 
 
 /// Encodes `cloud` as a PCD v0.7 file (ASCII, or binary); says what is wrong with an
 /// inconsistent cloud.
-pub fn encode_pcd(cloud: &PointCloud, encoding: CloudEncoding) -> Result<Vec<u8>, String> {
+pub fn encode_pcd(cloud: &PointCloud, encoding: CloudEncoding) -> Result<Vec<u8>, InvalidCloud> {
     check_shape(cloud)?;
     let (fields, sizes, types, counts) = if cloud.normals.is_some() {
         (

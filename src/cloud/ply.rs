@@ -5,7 +5,7 @@
 //! Reading accepts any PLY encoding and any numeric type for the coordinates
 //! (`double` is rounded to `f32`); other properties and elements are ignored.
 
-use super::io::{check_shape, CloudEncoding, CloudError};
+use super::io::{check_shape, CloudEncoding, CloudError, InvalidCloud};
 use super::PointCloud;
 use crate::ply::{self, Column, Element, Format, Ply, Property, Values};
 use nalgebra::{Point3, Vector3};
@@ -100,7 +100,10 @@ fn organisation(ply: &Ply, count: usize) -> Result<(u32, u32), String> {
 
 /// Encodes `cloud` as a PLY file (ASCII, or binary little-endian); says what is
 /// wrong with an inconsistent cloud.
-pub fn encode_ply_cloud(cloud: &PointCloud, encoding: CloudEncoding) -> Result<Vec<u8>, String> {
+pub fn encode_ply_cloud(
+    cloud: &PointCloud,
+    encoding: CloudEncoding,
+) -> Result<Vec<u8>, InvalidCloud> {
     check_shape(cloud)?;
     let float = |name: &str, values: Vec<f32>| Property {
         name: name.to_string(),
@@ -138,6 +141,7 @@ pub fn encode_ply_cloud(cloud: &PointCloud, encoding: CloudEncoding) -> Result<V
             properties,
         }],
     })
+    .map_err(InvalidCloud::from)
 }
 
 #[cfg(test)]

@@ -20,6 +20,33 @@ pub struct TriMesh {
     pub triangles: Vec<[u32; 3]>,
 }
 
+/// Why a mesh cannot be encoded in a file format (it is larger than the format
+/// counts).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum EncodeError {
+    /// More vertices than PLY `int` indices address.
+    #[error("{vertices} vertices is more than PLY `int` indices address")]
+    TooManyVertices {
+        /// The number of vertices.
+        vertices: usize,
+    },
+    /// More triangles than binary STL counts.
+    #[error("{triangles} triangles is more than binary STL holds")]
+    TooManyTriangles {
+        /// The number of triangles.
+        triangles: usize,
+    },
+    /// The PLY encoder refused the mesh's columns (boxed: it is large, and rare).
+    #[error(transparent)]
+    Ply(Box<crate::ply::EncodeError>),
+}
+
+impl From<crate::ply::EncodeError> for EncodeError {
+    fn from(e: crate::ply::EncodeError) -> EncodeError {
+        EncodeError::Ply(Box::new(e))
+    }
+}
+
 /// Errors of reading, writing or validating a mesh; each names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
@@ -40,6 +67,14 @@ pub enum MeshError {
         location: String,
         /// What is wrong.
         problem: String,
+    },
+    /// The mesh cannot be written in the file's format.
+    #[error("{path}: mesh: {problem}")]
+    Encode {
+        /// The file that was to be written.
+        path: PathBuf,
+        /// Why the format cannot hold the mesh.
+        problem: EncodeError,
     },
     /// The file's extension names no supported format.
     #[error("{path}: unsupported mesh format (use .obj, .stl or .ply)")]

@@ -3,7 +3,7 @@
 //! Written as `double x y z` and `list uchar int vertex_indices`, so coordinates
 //! round-trip exactly.
 
-use super::{MeshError, TriMesh};
+use super::{EncodeError, MeshError, TriMesh};
 use crate::fsio::write_atomically;
 use crate::ply::{self, Column, Element, Format, Ply, PlyError, Property, ScalarType, Values};
 use nalgebra::Point3;
@@ -124,9 +124,8 @@ pub fn parse_ply_mesh(bytes: &[u8], source: &Path) -> Result<TriMesh, MeshError>
 /// usual choice), atomically; the mesh must be valid.
 pub fn write_ply_mesh(path: &Path, mesh: &TriMesh, format: Format) -> Result<(), MeshError> {
     mesh.validate(path)?;
-    let bytes = encode_ply_mesh(mesh, format).map_err(|problem| MeshError::Parse {
+    let bytes = encode_ply_mesh(mesh, format).map_err(|problem| MeshError::Encode {
         path: path.to_path_buf(),
-        location: "mesh".into(),
         problem,
     })?;
     write_atomically(path, &bytes).map_err(|source| MeshError::Io {
@@ -137,12 +136,11 @@ pub fn write_ply_mesh(path: &Path, mesh: &TriMesh, format: Format) -> Result<(),
 
 /// Encodes `mesh` as a PLY file in `format`; fails only when the mesh is too big
 /// for `int` indices.
-pub fn encode_ply_mesh(mesh: &TriMesh, format: Format) -> Result<Vec<u8>, String> {
+pub fn encode_ply_mesh(mesh: &TriMesh, format: Format) -> Result<Vec<u8>, EncodeError> {
     if mesh.vertices.len() > i32::MAX as usize {
-        return Err(format!(
-            "{} vertices is more than PLY `int` indices address",
-            mesh.vertices.len()
-        ));
+        return Err(EncodeError::TooManyVertices {
+            vertices: mesh.vertices.len(),
+        });
     }
     let axis = |i: usize| Property {
         name: ["x", "y", "z"][i].to_string(),
@@ -173,6 +171,7 @@ pub fn encode_ply_mesh(mesh: &TriMesh, format: Format) -> Result<Vec<u8>, String
             },
         ],
     })
+    .map_err(EncodeError::from)
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 //! `n` triangles in its header), since binary files may begin with `solid` too.
 //! Binary STL stores `f32`, so writing rounds coordinates to `f32`.
 
-use super::{MeshError, TriMesh};
+use super::{EncodeError, MeshError, TriMesh};
 use crate::fsio::write_atomically;
 use nalgebra::{Point3, Vector3};
 use std::collections::HashMap;
@@ -42,9 +42,8 @@ pub fn parse_stl(bytes: &[u8], source: &Path) -> Result<TriMesh, MeshError> {
 /// atomically; the mesh must be valid.
 pub fn write_stl(path: &Path, mesh: &TriMesh) -> Result<(), MeshError> {
     mesh.validate(path)?;
-    let bytes = encode_stl(mesh).map_err(|problem| MeshError::Parse {
+    let bytes = encode_stl(mesh).map_err(|problem| MeshError::Encode {
         path: path.to_path_buf(),
-        location: "mesh".to_string(),
         problem,
     })?;
     write_atomically(path, &bytes).map_err(|source| MeshError::Io {
@@ -55,12 +54,9 @@ pub fn write_stl(path: &Path, mesh: &TriMesh) -> Result<(), MeshError> {
 
 /// Encodes `mesh` (assumed valid) as binary STL; fails only with more triangles
 /// than the format counts.
-pub fn encode_stl(mesh: &TriMesh) -> Result<Vec<u8>, String> {
-    let n = u32::try_from(mesh.triangles.len()).map_err(|_| {
-        format!(
-            "{} triangles is more than binary STL holds",
-            mesh.triangles.len()
-        )
+pub fn encode_stl(mesh: &TriMesh) -> Result<Vec<u8>, EncodeError> {
+    let n = u32::try_from(mesh.triangles.len()).map_err(|_| EncodeError::TooManyTriangles {
+        triangles: mesh.triangles.len(),
     })?;
     let mut out = Vec::with_capacity(HEADER_BYTES + RECORD_BYTES * mesh.triangles.len());
     // The header must not start with "solid", or some readers take it for ASCII.

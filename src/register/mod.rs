@@ -233,7 +233,7 @@ pub fn register_all_timed(
         .par_iter()
         .map(|entry| match &entry.prepared {
             Ok(model) => register_one(&entry.name, model, &target, params, seed),
-            Err(reason) => ModelRegistration::failed(&entry.name, reason.clone()),
+            Err(reason) => ModelRegistration::failed(&entry.name, reason.to_string()),
         })
         .collect();
     for r in &results {

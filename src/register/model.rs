@@ -37,7 +37,36 @@ pub(super) struct PreparedModel {
 #[derive(Debug)]
 pub(super) struct ModelEntry {
     pub(super) name: String,
-    pub(super) prepared: Result<PreparedModel, String>,
+    pub(super) prepared: Result<PreparedModel, ModelUnusable>,
+}
+
+/// Why a model cannot be prepared for registration (it is kept as a failed entry).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub(super) enum ModelUnusable {
+    /// Too few valid (finite) points.
+    #[error("model cloud has {got} valid points, fewer than {need}")]
+    FewValidPoints {
+        /// Valid points.
+        got: usize,
+        /// Points needed.
+        need: usize,
+    },
+    /// Too few points left after downsampling for the descriptors.
+    #[error("model cloud has {got} points after downsampling to {voxel_mm} mm, fewer than {need} for FPFH")]
+    FewFeaturePoints {
+        /// Points after downsampling.
+        got: usize,
+        /// The voxel size (mm).
+        voxel_mm: f64,
+        /// Points needed.
+        need: usize,
+    },
+    /// The nearest-point field would be too large.
+    #[error("model is too large for registration: bounding box diagonal {extent_m:.3} m")]
+    TooLarge {
+        /// Bounding-box diagonal (m).
+        extent_m: f64,
+    },
 }
 
 /// The models of a category, prepared once and reused for many targets.
@@ -52,14 +81,13 @@ const MAX_FIELD_CELLS: usize = 8_000_000;
 pub(super) fn prepare_model(
     cloud: &PointCloud,
     params: &RegisterParams,
-) -> Result<PreparedModel, String> {
+) -> Result<PreparedModel, ModelUnusable> {
     let valid = voxel_downsample(cloud, 0.0);
     if valid.len() < params.min_feature_points {
-        return Err(format!(
-            "model cloud has {} valid points, fewer than {}",
-            valid.len(),
-            params.min_feature_points
-        ));
+        return Err(ModelUnusable::FewValidPoints {
+            got: valid.len(),
+            need: params.min_feature_points,
+        });
     }
     let extent_m = bbox_diagonal(&valid.points);
     let outward = Orientation::AwayFrom(centroid(&valid.points));
@@ -84,12 +112,11 @@ pub(super) fn prepare_model(
     let (feature_points, feature_normals) =
         with_normals(voxel_downsample(&valid, params.feature_voxel_m));
     if feature_points.len() < params.min_feature_points {
-        return Err(format!(
-            "model cloud has {} points after downsampling to {} mm, fewer than {} for FPFH",
-            feature_points.len(),
-            params.feature_voxel_m * 1e3,
-            params.min_feature_points
-        ));
+        return Err(ModelUnusable::FewFeaturePoints {
+            got: feature_points.len(),
+            voxel_mm: params.feature_voxel_m * 1e3,
+            need: params.min_feature_points,
+        });
     }
     let index = KdIndex::new(&points);
     let lookup = SurfaceLookup::new(
@@ -99,9 +126,7 @@ pub(super) fn prepare_model(
         params.field_margin_m as f32,
         MAX_FIELD_CELLS,
     )
-    .ok_or_else(|| {
-        format!("model is too large for registration: bounding box diagonal {extent_m:.3} m")
-    })?;
+    .ok_or(ModelUnusable::TooLarge { extent_m })?;
     let feature_tree = KdIndex::new(&feature_points);
     let features = compute_fpfh(
         &feature_points,
@@ -271,7 +296,11 @@ mod tests {
         assert_eq!(set.names(), ["box", "tiny"]);
         assert!(set.models[0].prepared.is_ok());
         let reason = set.models[1].prepared.as_ref().unwrap_err();
-        assert!(reason.contains("valid points"), "{reason}");
+        assert!(
+            matches!(reason, ModelUnusable::FewValidPoints { .. }),
+            "{reason:?}"
+        );
+        assert!(reason.to_string().contains("valid points"), "{reason}");
         assert_eq!(set.without("box").names(), ["tiny"]);
     }
 

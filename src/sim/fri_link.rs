@@ -28,17 +28,23 @@ pub struct LinkFaults {
     pub spoof_probability: f64,
 }
 
+/// Link faults out of range: a probability outside 0..=1 or a delay outside 0..=1 s.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error("FRI link faults {faults:?}: probabilities must lie in 0..=1 and the delay in 0..=1 s")]
+pub struct BadLinkFaults {
+    /// The faults asked for.
+    pub faults: LinkFaults,
+}
+
 impl LinkFaults {
-    fn validate(&self) -> Result<(), String> {
+    fn validate(&self) -> Result<(), BadLinkFaults> {
         let p = |v: f64| (0.0..=1.0).contains(&v);
         if !(p(self.withhold_probability)
             && p(self.spoof_probability)
             && self.answer_delay_s.is_finite()
             && (0.0..=1.0).contains(&self.answer_delay_s))
         {
-            return Err(format!(
-                "FRI link faults {self:?}: probabilities must lie in 0..=1 and the delay in 0..=1 s"
-            ));
+            return Err(BadLinkFaults { faults: *self });
         }
         Ok(())
     }
@@ -218,7 +224,7 @@ impl FaultyLink {
     }
 
     /// Sets the faults from now on.
-    pub fn set_faults(&self, faults: LinkFaults) -> Result<(), String> {
+    pub fn set_faults(&self, faults: LinkFaults) -> Result<(), BadLinkFaults> {
         faults.validate()?;
         lock(&self.shared).faults = faults;
         Ok(())

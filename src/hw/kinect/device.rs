@@ -121,9 +121,9 @@ impl Kinect {
         };
         registration
             .validate()
-            .map_err(|problem| KinectError::Recording {
+            .map_err(|e| KinectError::Recording {
                 path: "device registration".into(),
-                problem,
+                problem: e.to_string(),
             })?;
         if source == RegistrationSource::Nominal {
             tracing::warn!(

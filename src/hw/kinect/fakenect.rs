@@ -289,7 +289,7 @@ pub fn read_registration(dir: &Path) -> Result<Option<Registration>, KinectError
         },
         const_shift: number(&json, "const_shift")?,
     };
-    registration.validate().map_err(bad)?;
+    registration.validate().map_err(|e| bad(e.to_string()))?;
     Ok(Some(registration))
 }
 

@@ -67,6 +67,18 @@ pub struct KinectIntrinsics {
     pub cy_px: f64,
 }
 
+/// A registration value that describes no usable sensor.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error("{field} = {value}: {problem}")]
+pub struct BadRegistration {
+    /// The field (`zero_plane.reference_pixel_size`, `const_shift`, ...).
+    pub field: &'static str,
+    /// Its value.
+    pub value: f64,
+    /// What is wrong with it.
+    pub problem: &'static str,
+}
+
 impl Registration {
     /// The values libfreenect's sources and OpenNI give for a typical Kinect v1:
     /// a 7.5 cm baseline, 2.3 cm to the RGB camera, a 1.2 m reference plane with
@@ -92,19 +104,27 @@ impl Registration {
     }
 
     /// Checks that the values describe a usable sensor (positive, finite).
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), BadRegistration> {
         let z = &self.zero_plane;
-        for (name, v) in [
-            ("dcmos_emitter_dist", z.dcmos_emitter_dist),
-            ("reference_distance", z.reference_distance),
-            ("reference_pixel_size", z.reference_pixel_size),
+        for (field, value) in [
+            ("zero_plane.dcmos_emitter_dist", z.dcmos_emitter_dist),
+            ("zero_plane.reference_distance", z.reference_distance),
+            ("zero_plane.reference_pixel_size", z.reference_pixel_size),
         ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("zero_plane.{name} = {v}: must be finite and > 0"));
+            if !(value.is_finite() && value > 0.0) {
+                return Err(BadRegistration {
+                    field,
+                    value,
+                    problem: "must be finite and > 0",
+                });
             }
         }
         if !self.const_shift.is_finite() {
-            return Err(format!("const_shift = {}: not finite", self.const_shift));
+            return Err(BadRegistration {
+                field: "const_shift",
+                value: self.const_shift,
+                problem: "not finite",
+            });
         }
         Ok(())
     }
@@ -214,6 +234,8 @@ mod tests {
     fn bad_registration_is_named() {
         let mut r = Registration::nominal();
         r.zero_plane.reference_pixel_size = 0.0;
-        assert!(r.validate().unwrap_err().contains("reference_pixel_size"));
+        let e = r.validate().unwrap_err();
+        assert_eq!(e.field, "zero_plane.reference_pixel_size");
+        assert!(e.to_string().contains("reference_pixel_size"), "{e}");
     }
 }
