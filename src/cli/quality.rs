@@ -6,8 +6,8 @@ use crate::geometry::{params_from_pose, parse_pose};
 use crate::mesh::load_mesh;
 use crate::quality::approach::{ApproachOptions, ApproachStop};
 use crate::quality::autograsp::{
-    evaluate_approached_grasp, AutoGraspOptions, FingerStop, GraspApproach, GraspObject, Obstacle,
-    StartCollision,
+    evaluate_approached_grasp, ApproachedGrasp, AutoGraspOptions, FingerStop, GraspApproach,
+    GraspObject, Obstacle, StartCollision,
 };
 use crate::quality::stability::{stability_range, StabilityOptions, StabilityRange};
 use crate::quality::{self, Contact, GraspQuality, QualityParams};
@@ -184,9 +184,11 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
     let e = evaluate_approached_grasp(
         &hand,
         &grasp_object,
-        &pose,
-        args.spread,
-        &approach,
+        &ApproachedGrasp {
+            object_from_palm: pose,
+            spread_rad: args.spread,
+            approach,
+        },
         &options,
         &params,
         true,

@@ -189,9 +189,13 @@ pub fn straight_line(
     }
     let mut kept = vec![0];
     let mut worst = (0.0f64, 0.0f64);
-    reduce(
-        robot, &line, &chain, 0, steps, tolerance, &mut kept, &mut worst,
-    );
+    let reduction = ChainReduction {
+        robot,
+        line: &line,
+        chain: &chain,
+        tolerance,
+    };
+    reduction.reduce(0, steps, &mut kept, &mut worst);
     Ok(StraightPath {
         method: PathMethod::CartesianWaypoints,
         waypoints: kept.iter().map(|&i| chain[i]).collect(),
@@ -201,28 +205,33 @@ pub fn straight_line(
     })
 }
 
-/// Appends the kept indices of `chain[i..=j]` after `i` to `kept`.
-#[allow(clippy::too_many_arguments)]
-fn reduce(
-    robot: &Robot,
-    line: &Line,
-    chain: &[ArmJoints],
-    i: usize,
-    j: usize,
-    tolerance: &PathTolerance,
-    kept: &mut Vec<usize>,
-    worst: &mut (f64, f64),
-) {
-    let (dp, dr) = line.deviation(robot, &chain[i], &chain[j]);
-    if j == i + 1 || (dp <= tolerance.position_m && dr <= tolerance.rotation_rad) {
-        worst.0 = worst.0.max(dp);
-        worst.1 = worst.1.max(dr);
-        kept.push(j);
-        return;
+/// A chain of IK solutions along `line` to thin out to the waypoints that keep
+/// the palm within `tolerance` of it.
+#[derive(Clone, Copy)]
+struct ChainReduction<'a> {
+    robot: &'a Robot,
+    line: &'a Line,
+    chain: &'a [ArmJoints],
+    tolerance: &'a PathTolerance,
+}
+
+impl ChainReduction<'_> {
+    /// Appends the kept indices of `chain[i..=j]` after `i` to `kept`; `worst` is the
+    /// largest (position, rotation) deviation of the joint-space segments kept.
+    fn reduce(&self, i: usize, j: usize, kept: &mut Vec<usize>, worst: &mut (f64, f64)) {
+        let (dp, dr) = self
+            .line
+            .deviation(self.robot, &self.chain[i], &self.chain[j]);
+        if j == i + 1 || (dp <= self.tolerance.position_m && dr <= self.tolerance.rotation_rad) {
+            worst.0 = worst.0.max(dp);
+            worst.1 = worst.1.max(dr);
+            kept.push(j);
+            return;
+        }
+        let m = (i + j) / 2;
+        self.reduce(i, m, kept, worst);
+        self.reduce(m, j, kept, worst);
     }
-    let m = (i + j) / 2;
-    reduce(robot, line, chain, i, m, tolerance, kept, worst);
-    reduce(robot, line, chain, m, j, tolerance, kept, worst);
 }
 
 /// The Cartesian segment the palm should follow.

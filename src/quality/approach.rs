@@ -159,7 +159,7 @@ mod tests {
     use super::*;
     use crate::quality::autograsp::tests::{cuboid, hand_of};
     use crate::quality::autograsp::{
-        evaluate_approached_grasp, AutoGraspOptions, GraspApproach, Obstacle,
+        evaluate_approached_grasp, ApproachedGrasp, AutoGraspOptions, GraspApproach, Obstacle,
     };
     use crate::quality::QualityParams;
     use crate::robot::shipped_robot;
@@ -280,9 +280,11 @@ mod tests {
         let at_pose = evaluate_approached_grasp(
             &hand,
             &obj,
-            &inside,
-            0.0,
-            &GraspApproach::AtPose,
+            &ApproachedGrasp {
+                object_from_palm: inside,
+                spread_rad: 0.0,
+                approach: GraspApproach::AtPose,
+            },
             &opts,
             &params,
             false,
@@ -293,9 +295,11 @@ mod tests {
         let approached = evaluate_approached_grasp(
             &hand,
             &obj,
-            &inside,
-            0.0,
-            &GraspApproach::ToContact(ApproachOptions::default()),
+            &ApproachedGrasp {
+                object_from_palm: inside,
+                spread_rad: 0.0,
+                approach: GraspApproach::ToContact(ApproachOptions::default()),
+            },
             &opts,
             &params,
             false,
@@ -312,9 +316,11 @@ mod tests {
         let e = evaluate_approached_grasp(
             &hand,
             &obj,
-            &deep,
-            0.0,
-            &GraspApproach::ToContact(ApproachOptions::default()),
+            &ApproachedGrasp {
+                object_from_palm: deep,
+                spread_rad: 0.0,
+                approach: GraspApproach::ToContact(ApproachOptions::default()),
+            },
             &opts,
             &params,
             false,

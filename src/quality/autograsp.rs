@@ -592,41 +592,61 @@ pub fn evaluate_grasp(
     })
 }
 
-/// [`evaluate_grasp`] after the palm is brought to the grasp as `approach` says:
-/// with approach to contact, from the pre-grasp along the approach axis through
-/// `object_from_palm` until first contact ([`super::approach::approach_to_contact`]),
-/// then closed where it stopped; with [`GraspApproach::AtPose`] (the paper's
-/// setting) closed at `object_from_palm` itself. A pre-grasp that already collides
-/// is reported as a collision at the start, like an open hand that collides.
-#[allow(clippy::too_many_arguments)]
+/// A grasp to evaluate with its approach: where the palm is planned, the spread, and
+/// how the palm is brought there ([`evaluate_approached_grasp`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ApproachedGrasp {
+    /// The planned palm pose in the object frame.
+    pub object_from_palm: Pose,
+    /// The spread (rad).
+    pub spread_rad: f64,
+    /// How the palm is brought to `object_from_palm`.
+    pub approach: GraspApproach,
+}
+
+/// [`evaluate_grasp`] after the palm is brought to the grasp as `grasp.approach`
+/// says: with approach to contact, from the pre-grasp along the approach axis
+/// through `grasp.object_from_palm` until first contact
+/// ([`super::approach::approach_to_contact`]), then closed where it stopped; with
+/// [`GraspApproach::AtPose`] (the paper's setting) closed at `grasp.object_from_palm`
+/// itself. A pre-grasp that already collides is reported as a collision at the
+/// start, like an open hand that collides.
 pub fn evaluate_approached_grasp(
     hand: &HandModel,
     object: &GraspObject,
-    object_from_palm: &Pose,
-    spread_rad: f64,
-    approach: &GraspApproach,
+    grasp: &ApproachedGrasp,
     options: &AutoGraspOptions,
     params: &QualityParams,
     with_volume: bool,
 ) -> Result<GraspEvaluation, GraspSimError> {
+    let ApproachedGrasp {
+        object_from_palm,
+        spread_rad,
+        approach,
+    } = grasp;
     let GraspApproach::ToContact(approach) = approach else {
         return evaluate_grasp(
             hand,
             object,
             object_from_palm,
-            spread_rad,
+            *spread_rad,
             options,
             params,
             with_volume,
         );
     };
-    let stop =
-        super::approach::approach_to_contact(hand, object, object_from_palm, spread_rad, approach)?;
+    let stop = super::approach::approach_to_contact(
+        hand,
+        object,
+        object_from_palm,
+        *spread_rad,
+        approach,
+    )?;
     let mut e = evaluate_grasp(
         hand,
         object,
         &stop.object_from_palm,
-        spread_rad,
+        *spread_rad,
         options,
         params,
         with_volume,

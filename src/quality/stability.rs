@@ -136,7 +136,6 @@ pub fn displaced(params: &PoseParams, dof: usize, offset: f64) -> Pose {
 
 /// The stability ranges of the grasp at `params` (palm in the object frame) with
 /// `spread_rad`; the twelve directions run in parallel.
-#[allow(clippy::too_many_arguments)]
 pub fn stability_range(
     hand: &HandModel,
     object: &GraspObject,

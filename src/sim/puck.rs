@@ -391,19 +391,40 @@ struct Motion {
     tstop_s: Option<f64>,
 }
 
+/// What a move command asks of the motor: the target, the trapezoid's limits, and
+/// the modes during and after the move.
+#[derive(Debug, Clone, Copy)]
+struct MoveRequest {
+    /// Target position (counts).
+    to: f64,
+    /// Cruise speed (counts/s).
+    speed: f64,
+    /// Acceleration (counts/s^2).
+    accel: f64,
+    /// MODE while moving.
+    moving_mode: i32,
+    /// MODE once the move ends.
+    end_mode: i32,
+}
+
 impl Motion {
-    #[allow(clippy::too_many_arguments)]
+    /// The move from `from` (counts) that `request` asks for, starting at `start`;
+    /// it stalls at `contact` (counts) if closing reaches it, and ends `tstop_ms`
+    /// after stalling (never for 0).
     fn new(
         start: Duration,
         from: f64,
-        to: f64,
-        speed: f64,
-        accel: f64,
-        moving_mode: i32,
-        end_mode: i32,
+        request: MoveRequest,
         contact: Option<f64>,
         tstop_ms: i32,
     ) -> Motion {
+        let MoveRequest {
+            to,
+            speed,
+            accel,
+            moving_mode,
+            end_mode,
+        } = request;
         let distance = (to - from).abs();
         let (mut ramp_s, mut peak_speed) = (speed / accel, speed);
         let cruise_s = if accel * ramp_s * ramp_s >= distance {
@@ -759,14 +780,17 @@ impl EmulatedPuck {
         });
         let speed = f64::from(speed_counts_per_ms.max(1)) * 1e3;
         let accel = f64::from(self.prop(Property::Accel).max(1)) * 1e6;
-        self.motion = Some(Motion::new(
-            now,
-            self.position,
-            f64::from(target),
+        let request = MoveRequest {
+            to: f64::from(target),
             speed,
             accel,
             moving_mode,
             end_mode,
+        };
+        self.motion = Some(Motion::new(
+            now,
+            self.position,
+            request,
             self.contact_counts,
             self.prop(Property::Tstop),
         ));

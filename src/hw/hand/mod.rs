@@ -312,6 +312,15 @@ enum Verdict {
     Noise(HandError),
 }
 
+/// A command that starts one puck's motion: the frames to send (again, if the
+/// puck ignores them), its name for messages, and the target it moves to.
+struct MotionCommand {
+    puck: Puck,
+    frames: Vec<CanFrame>,
+    name: &'static str,
+    target_counts: i32,
+}
+
 /// One motion being watched.
 struct Motion {
     puck: Puck,
@@ -522,15 +531,13 @@ impl<B: CanBus> Hand<B> {
                 Property::Mode,
                 mode::TRAPEZOIDAL,
             );
-            motions.push(self.begin_motion(
+            let request = MotionCommand {
                 puck,
-                vec![frame],
-                "MODE 5",
-                counts[puck.index()],
-                deadline,
-                OP,
-                timeout,
-            )?);
+                frames: vec![frame],
+                name: "MODE 5",
+                target_counts: counts[puck.index()],
+            };
+            motions.push(self.begin_motion(request, deadline, OP, timeout)?);
         }
         self.watch(OP, motions, deadline, timeout)
     }
@@ -647,39 +654,39 @@ impl<B: CanBus> Hand<B> {
         let mut motions = Vec::new();
         for &puck in pucks {
             let frame = puck::set_frame(puck::node_id(puck.node()), Property::Cmd, cmd);
-            motions.push(self.begin_motion(
+            let request = MotionCommand {
                 puck,
-                vec![frame],
-                command::name(cmd),
-                target(puck),
-                deadline,
-                op,
-                timeout,
-            )?);
+                frames: vec![frame],
+                name: command::name(cmd),
+                target_counts: target(puck),
+            };
+            motions.push(self.begin_motion(request, deadline, op, timeout)?);
         }
         self.watch(op, motions, deadline, timeout)
     }
 
     /// Reads the start position and sends the command.
-    #[allow(clippy::too_many_arguments)]
     fn begin_motion(
         &mut self,
-        puck: Puck,
-        command_frames: Vec<CanFrame>,
-        command: &'static str,
-        target_counts: i32,
+        command: MotionCommand,
         deadline: Duration,
         op: &'static str,
         timeout: Duration,
     ) -> Result<Motion, HandError> {
+        let MotionCommand {
+            puck,
+            frames,
+            name,
+            target_counts,
+        } = command;
         let start_counts = self.get(puck, Property::P, deadline, op, timeout)?;
-        for frame in &command_frames {
+        for frame in &frames {
             self.bus.send(frame)?;
         }
         Ok(Motion {
             puck,
-            command_frames,
-            command,
+            command_frames: frames,
+            command: name,
             start_counts,
             target_counts,
             seen_moving: false,
