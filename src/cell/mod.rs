@@ -98,6 +98,12 @@ pub enum CellError {
         /// The backends there are.
         expected: &'static str,
     },
+    /// A trial request names a planning method the cell does not have.
+    #[error("method {method:?}: unknown (use {})", plan::METHODS.join(", "))]
+    UnknownMethod {
+        /// The method named.
+        method: String,
+    },
     /// A device (arm, hand, camera) could not be started.
     #[error("{device}: {detail}")]
     Device {

@@ -124,9 +124,10 @@ pub fn trial_options(
     db: &CategoryDb,
     method: &str,
     protocol: Protocol,
-) -> Result<PlanOptions, String> {
-    let (kernel, best_single) = method_kernel(method)
-        .ok_or_else(|| format!("method {method:?}: unknown (use {})", METHODS.join(", ")))?;
+) -> Result<PlanOptions, CellError> {
+    let (kernel, best_single) = method_kernel(method).ok_or_else(|| CellError::UnknownMethod {
+        method: method.to_string(),
+    })?;
     let mut options = PlanOptions {
         weights: crate::plan::category::weights(db),
         // The baseline's repair only when the baseline is the method.
@@ -167,7 +168,7 @@ pub fn plan_trial(
     let grasps = crate::plan::category::example_grasps(db, &model_fits, task)
         .map_err(|e| other(e.to_string()))?;
     let protocol = request.protocol().map_err(|e| other(e.to_string()))?;
-    let options = trial_options(config, db, method, protocol).map_err(other)?;
+    let options = trial_options(config, db, method, protocol).map_err(|e| other(e.to_string()))?;
     let seen_points = fits.seen().map_err(|e| other(e.to_string()))?;
     let seen_cloud = PointCloud::from_points(seen_points.iter().map(|&p| p.into()).collect());
     let seen = match protocol {
@@ -428,6 +429,7 @@ mod tests {
         );
         assert!(trial_options(&config, db, "nearest", Protocol::Cell)
             .unwrap_err()
+            .to_string()
             .contains("nearest"));
     }
 

@@ -23,6 +23,20 @@ use crate::sim::camera::DepthCamera;
 use crate::sim::scene::TableBox;
 use serde::Serialize;
 
+/// Why no model of a category registered to a target.
+#[derive(Debug, thiserror::Error)]
+pub enum RegistrationFailure {
+    /// The registration itself failed (e.g. an empty target).
+    #[error(transparent)]
+    Register(#[from] crate::register::RegisterError),
+    /// Every model was tried and none registered.
+    #[error("no model registered: {reasons}")]
+    NoneRegistered {
+        /// Each model's reason.
+        reasons: String,
+    },
+}
+
 /// Registration of a target cloud against a category's training models.
 pub trait Registrar: Sync {
     /// The fits of every training model except the one named `exclude` (the held-out
@@ -34,7 +48,7 @@ pub trait Registrar: Sync {
         target_base: &PointCloud,
         exclude: Option<&str>,
         seed: u64,
-    ) -> Result<Vec<ModelFit>, String>;
+    ) -> Result<Vec<ModelFit>, RegistrationFailure>;
 }
 
 /// Everything an experiment needs besides the databases and the registration.

@@ -2,7 +2,7 @@
 //! [`Registrar`]: the models are prepared once, and leave-one-out drops the held-out
 //! model from the set for its own target.
 
-use super::experiment::Registrar;
+use super::experiment::{Registrar, RegistrationFailure};
 use crate::category::CategoryDb;
 use crate::cloud::PointCloud;
 use crate::plan::input::fits_input;
@@ -55,7 +55,7 @@ impl Registrar for CategoryRegistrar {
         target_base: &PointCloud,
         exclude: Option<&str>,
         seed: u64,
-    ) -> Result<Vec<ModelFit>, String> {
+    ) -> Result<Vec<ModelFit>, RegistrationFailure> {
         let without;
         let set = match exclude {
             Some(name) => {
@@ -64,14 +64,12 @@ impl Registrar for CategoryRegistrar {
             }
             None => &self.set,
         };
-        let registrations =
-            register_all(target_base, set, &self.params, seed).map_err(|e| e.to_string())?;
+        let registrations = register_all(target_base, set, &self.params, seed)?;
         let input = fits_input(&registrations);
         if input.fits.is_empty() {
-            return Err(format!(
-                "no model registered: {}",
-                input.unregistered_text()
-            ));
+            return Err(RegistrationFailure::NoneRegistered {
+                reasons: input.unregistered_text(),
+            });
         }
         Ok(input.fits)
     }
