@@ -312,10 +312,18 @@ mod tests {
         let palm = crate::geometry::pose_from_params(&[0.6, 0.0, 0.2, PI, 0.0, PI]);
         let pregrasp = crate::geometry::pose_from_params(&[0.6, 0.0, 0.3, PI, 0.0, PI]);
         let plan = |joints: [f64; 7], spread_rad: f64| {
-            let mut p = GraspPlan::new(7, 0, &palm, &pregrasp, joints, [0.1; 7], 0.0, true, "ours")
-                .unwrap();
-            p.spread_rad = spread_rad;
-            p
+            let grasp = crate::plan::PlannedGrasp {
+                pose: palm,
+                pregrasp_pose: pregrasp,
+                spread_rad,
+                joints: Some(joints),
+                pregrasp_joints: Some([0.1; 7]),
+                reachable: true,
+                unreachable: None,
+                objective: 0.0,
+                log_objective: f64::NEG_INFINITY,
+            };
+            GraspPlan::new(7, 0, &grasp, "ours").unwrap()
         };
         assert!(execution_request(&plan([0.1; 7], 0.0)).is_ok());
         let mut joints = [0.1; 7];

@@ -292,32 +292,6 @@ pub fn executable_joints(
     Ok(())
 }
 
-/// The message for a planned grasp.
-pub fn plan_message(
-    trial_id: u64,
-    method: &str,
-    grasp: &PlannedGrasp,
-) -> Result<GraspPlan, CellError> {
-    let (Some(joints), Some(pregrasp_joints)) = (grasp.joints, grasp.pregrasp_joints) else {
-        return Err(CellError::Invalid(
-            "a reachable grasp without joint solutions".into(),
-        ));
-    };
-    let mut msg = GraspPlan::new(
-        trial_id,
-        monotonic_now_ns(),
-        &grasp.pose,
-        &grasp.pregrasp_pose,
-        joints,
-        pregrasp_joints,
-        grasp.objective,
-        true,
-        method,
-    )?;
-    msg.spread_rad = grasp.spread_rad;
-    Ok(msg)
-}
-
 /// Runs the plan stage until SIGTERM/SIGINT; databases come from `db_dir`.
 pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), CellError> {
     let robot = Arc::new(Robot::load(config)?);
@@ -371,7 +345,7 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
                 },
             );
             let msg = match planned {
-                Ok(grasp) => plan_message(trial_id, &method, &grasp)?,
+                Ok(grasp) => GraspPlan::new(trial_id, monotonic_now_ns(), &grasp, &method)?,
                 Err(failure) => {
                     tracing::warn!(trial_id, cause = ?failure.cause, "no plan: {}", failure.detail);
                     let method = if method.len() <= crate::ipc::NAME_CAPACITY {

@@ -82,6 +82,12 @@ pub enum IpcError {
         /// The received code.
         code: u32,
     },
+    /// A field the message needs is missing.
+    #[error("{field}: missing")]
+    Missing {
+        /// The missing field.
+        field: &'static str,
+    },
     /// More items than a fixed-capacity message holds.
     #[error("{field}: {count} items exceed the capacity of {max}")]
     TooMany {

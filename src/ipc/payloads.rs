@@ -10,6 +10,7 @@
 use super::services::Topic;
 use super::IpcError;
 use crate::geometry::{check_finite, matrix_rows, pose_from_matrix_rows, Pose};
+use crate::plan::PlannedGrasp;
 use iceoryx2::prelude::ZeroCopySend;
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
@@ -875,31 +876,32 @@ pub struct GraspPlan {
 message!(GraspPlan, Topic::GraspPlan);
 
 impl GraspPlan {
-    /// A plan. `method` must fit [`NAME_CAPACITY`] bytes.
-    #[allow(clippy::too_many_arguments)]
+    /// The plan to execute `grasp` (with its joint solutions) for trial `trial_id`.
+    /// `method` must fit [`NAME_CAPACITY`] bytes.
     pub fn new(
         trial_id: u64,
         stamp_ns: u64,
-        base_from_palm: &Pose,
-        base_from_pregrasp_palm: &Pose,
-        joints_rad: [f64; ARM_JOINTS],
-        pregrasp_joints_rad: [f64; ARM_JOINTS],
-        objective: f64,
-        reachable: bool,
+        grasp: &PlannedGrasp,
         method: &str,
     ) -> Result<GraspPlan, IpcError> {
+        let (Some(joints_rad), Some(pregrasp_joints_rad)) = (grasp.joints, grasp.pregrasp_joints)
+        else {
+            return Err(IpcError::Missing {
+                field: "grasp plan joint solutions",
+            });
+        };
         Ok(GraspPlan {
             trial_id,
             stamp_ns,
-            base_from_palm: PoseMatrix::from_pose(base_from_palm),
-            base_from_pregrasp_palm: PoseMatrix::from_pose(base_from_pregrasp_palm),
+            base_from_palm: PoseMatrix::from_pose(&grasp.pose),
+            base_from_pregrasp_palm: PoseMatrix::from_pose(&grasp.pregrasp_pose),
             joints_rad,
             pregrasp_joints_rad,
-            objective,
-            reachable: reachable as u32,
+            objective: grasp.objective,
+            reachable: 1,
             failure: FailureCause::None.code(),
             method: Name::new("grasp plan method", method)?,
-            spread_rad: 0.0,
+            spread_rad: grasp.spread_rad,
         })
     }
 
@@ -1477,6 +1479,32 @@ mod tests {
             msg.fits().unwrap()[2].status().unwrap(),
             FitStatus::Converged
         );
+    }
+
+    #[test]
+    fn a_plan_carries_its_grasp_and_needs_its_joint_solutions() {
+        let pose = pose_from_params(&[0.6, 0.0, 0.2, 3.1, 0.0, 0.0]);
+        let mut grasp = PlannedGrasp {
+            pose,
+            pregrasp_pose: pose_from_params(&[0.6, 0.0, 0.3, 3.1, 0.0, 0.0]),
+            spread_rad: 0.4,
+            joints: Some([0.1; ARM_JOINTS]),
+            pregrasp_joints: Some([0.2; ARM_JOINTS]),
+            reachable: true,
+            unreachable: None,
+            objective: 0.5,
+            log_objective: 0.5f64.ln(),
+        };
+        let plan = GraspPlan::new(3, 4, &grasp, "laplace").unwrap();
+        let (dp, dr) =
+            crate::geometry::pose_error(&plan.base_from_palm.to_pose("palm").unwrap(), &pose);
+        assert!(dp < 1e-12 && dr < 1e-12, "{dp} {dr}");
+        assert_eq!((plan.joints_rad, plan.spread_rad), ([0.1; ARM_JOINTS], 0.4));
+        assert!(plan.reachable().unwrap());
+        assert_eq!(plan.failure().unwrap(), FailureCause::None);
+        grasp.pregrasp_joints = None;
+        let err = GraspPlan::new(3, 4, &grasp, "laplace").unwrap_err();
+        assert!(err.to_string().contains("joint solutions"), "{err}");
     }
 
     #[test]
