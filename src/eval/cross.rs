@@ -5,6 +5,7 @@
 
 use super::experiment::{
     run_target, steps_per_target, Registrar, RegistrationStats, Setup, Target, TargetReport,
+    Training,
 };
 use super::loo::{tally_rows, TallyRow};
 use super::view::ViewKind;
@@ -105,9 +106,12 @@ pub fn cross_category(
                 index,
                 ordinal: ordinal as u64,
             };
-            run_target(
-                setup, target, train, None, &tasks, kernels, registrar, progress,
-            )
+            let training = Training {
+                db: train,
+                exclude: None,
+                registrar,
+            };
+            run_target(setup, target, &training, &tasks, kernels, progress)
         })
         .collect::<Result<_, _>>()?;
     let mut table = Vec::new();

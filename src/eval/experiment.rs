@@ -347,20 +347,32 @@ impl Drop for Steps<'_> {
     }
 }
 
-/// Runs one target: `train` holds the training models and their grasps (`exclude`
-/// names a model of `train` left out, the target itself in leave-one-out).
-/// `progress` advances by [`steps_per_target`] over the call.
-#[allow(clippy::too_many_arguments)]
+/// What a target is registered to and planned from.
+#[derive(Clone, Copy)]
+pub struct Training<'a> {
+    /// The training models and their grasps.
+    pub db: &'a CategoryDb,
+    /// A model of `db` left out (the target itself in leave-one-out).
+    pub exclude: Option<&'a str>,
+    /// The registration to the training models.
+    pub registrar: &'a dyn Registrar,
+}
+
+/// Runs one target against `training`, for every task and kernel. `progress`
+/// advances by [`steps_per_target`] over the call.
 pub fn run_target(
     setup: &Setup,
     target: Target,
-    train: &CategoryDb,
-    exclude: Option<&str>,
+    training: &Training,
     tasks: &[String],
     kernels: &[Kernel],
-    registrar: &dyn Registrar,
     progress: Option<&indicatif::ProgressBar>,
 ) -> Result<TargetReport, EvalError> {
+    let Training {
+        db: train,
+        exclude,
+        registrar,
+    } = *training;
     let mut steps = Steps {
         bar: progress,
         left: steps_per_target(tasks.len(), kernels.len()),

@@ -6,6 +6,7 @@
 use super::compare::{Pair, Tally};
 use super::experiment::{
     run_target, steps_per_target, Registrar, RegistrationStats, Setup, Target, TargetReport,
+    Training,
 };
 use super::view::ViewKind;
 use super::{check_request, EvalError};
@@ -143,16 +144,12 @@ pub fn leave_one_out(
                 index,
                 ordinal: ordinal as u64,
             };
-            run_target(
-                setup,
-                target,
+            let training = Training {
                 db,
-                Some(name),
-                &tasks,
-                kernels,
+                exclude: Some(name),
                 registrar,
-                progress,
-            )
+            };
+            run_target(setup, target, &training, &tasks, kernels, progress)
         })
         .collect::<Result<_, _>>()?;
     Ok(LooReport {
