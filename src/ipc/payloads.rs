@@ -789,46 +789,26 @@ impl Default for Fits {
 impl Fits {
     /// Fits of at most [`MAX_FITS`] models.
     pub fn new(trial_id: u64, stamp_ns: u64, fits: &[ModelFit]) -> Result<Fits, IpcError> {
-        if fits.len() > MAX_FITS {
-            return Err(IpcError::TooMany {
-                field: "fits",
-                count: fits.len(),
-                max: MAX_FITS,
-            });
-        }
         let mut out = Fits {
             trial_id,
             stamp_ns,
             count: fits.len() as u32,
             ..Fits::default()
         };
+        counted("fits", &out.models, fits.len())?;
         out.models[..fits.len()].copy_from_slice(fits);
         Ok(out)
     }
 
     /// The fits (checked count).
     pub fn fits(&self) -> Result<&[ModelFit], IpcError> {
-        let count = self.count as usize;
-        if count > MAX_FITS {
-            return Err(IpcError::TooMany {
-                field: "fits",
-                count,
-                max: MAX_FITS,
-            });
-        }
-        Ok(&self.models[..count])
+        counted("fits", &self.models, self.count as usize)
     }
 
     /// These fits with the seen surface `points` (base frame, at most
     /// [`MAX_SEEN_POINTS`]).
     pub fn with_seen(mut self, points: &[Point]) -> Result<Fits, IpcError> {
-        if points.len() > MAX_SEEN_POINTS {
-            return Err(IpcError::TooMany {
-                field: "seen points",
-                count: points.len(),
-                max: MAX_SEEN_POINTS,
-            });
-        }
+        counted("seen points", &self.seen, points.len())?;
         self.seen_count = points.len() as u32;
         self.seen[..points.len()].copy_from_slice(points);
         Ok(self)
@@ -836,16 +816,18 @@ impl Fits {
 
     /// The seen surface (checked count; empty when perception sent none).
     pub fn seen(&self) -> Result<&[Point], IpcError> {
-        let count = self.seen_count as usize;
-        if count > MAX_SEEN_POINTS {
-            return Err(IpcError::TooMany {
-                field: "seen points",
-                count,
-                max: MAX_SEEN_POINTS,
-            });
-        }
-        Ok(&self.seen[..count])
+        counted("seen points", &self.seen, self.seen_count as usize)
     }
+}
+
+/// The first `count` items of the fixed-capacity array `items` of message field
+/// `field`, or [`IpcError::TooMany`] when they do not fit.
+fn counted<'a, T>(field: &'static str, items: &'a [T], count: usize) -> Result<&'a [T], IpcError> {
+    items.get(..count).ok_or(IpcError::TooMany {
+        field,
+        count,
+        max: items.len(),
+    })
 }
 
 /// Planner -> executor: the grasp to execute.

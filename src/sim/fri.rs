@@ -1209,13 +1209,7 @@ pub fn run_udp(
                         let now = clock.now();
                         lock(sim).receive(&buf[..n], now);
                     }
-                    Err(e)
-                        if matches!(
-                            e.kind(),
-                            std::io::ErrorKind::WouldBlock
-                                | std::io::ErrorKind::TimedOut
-                                | std::io::ErrorKind::ConnectionRefused
-                        ) => {}
+                    Err(e) if crate::hw::fri::is_quiet_receive(&e) => {}
                     Err(e) => return Err(io("receive on", e)),
                 }
             }

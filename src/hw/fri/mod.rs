@@ -22,3 +22,15 @@ pub const JOINTS: usize = 7;
 
 /// The FRI default UDP port the PC binds.
 pub const DEFAULT_PORT: u16 = 49938;
+
+/// Whether a failed UDP receive only means that nothing arrived in time (or that
+/// the peer's port was closed, which Linux reports on the next receive), not a
+/// socket fault.
+pub fn is_quiet_receive(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::WouldBlock
+            | std::io::ErrorKind::TimedOut
+            | std::io::ErrorKind::ConnectionRefused
+    )
+}

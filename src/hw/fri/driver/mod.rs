@@ -367,13 +367,7 @@ fn serve(shared: &Shared, socket: &UdpSocket, clock: &dyn Clock) {
                     }
                 }
             }
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock
-                        | std::io::ErrorKind::TimedOut
-                        | std::io::ErrorKind::ConnectionRefused
-                ) => {}
+            Err(e) if super::is_quiet_receive(&e) => {}
             Err(e) => {
                 let error = io_error("receive on", socket.local_addr().unwrap_or(UNSPECIFIED), &e);
                 core.push(FriEvent::SocketError { error });
