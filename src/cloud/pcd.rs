@@ -117,157 +117,280 @@ impl Header {
 
 /// Parses the header; errors carry a 1-based line number (0: the header as a whole).
 fn parse_header(bytes: &[u8]) -> Result<Header, (usize, String)> {
-    let mut pos = 0;
-    let mut line_no = 0;
-    let mut version = None;
-    let mut names: Option<Vec<String>> = None;
-    let mut sizes: Option<Vec<usize>> = None;
-    let mut types: Option<Vec<FieldType>> = None;
-    let mut counts: Option<Vec<usize>> = None;
-    let mut width = None;
-    let mut height = None;
-    let mut points = None;
-    let mut viewpoint = false;
+    let mut cursor = HeaderCursor {
+        bytes,
+        pos: 0,
+        line_no: 0,
+    };
+    let mut read = HeaderLines::default();
     let binary = loop {
-        if pos >= bytes.len() {
-            return Err((
-                0,
-                format!("file ends after {line_no} header lines without a DATA line (truncated?)"),
-            ));
-        }
-        let end = bytes[pos..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map_or(bytes.len(), |i| pos + i);
-        line_no += 1;
-        let raw = &bytes[pos..end];
-        pos = (end + 1).min(bytes.len());
-        let line = std::str::from_utf8(raw)
-            .map_err(|_| (line_no, "header line is not text".to_string()))?
-            .trim();
+        let line = cursor.next_line()?;
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
+        if let Some(binary) = read.read(cursor.line_no, line)? {
+            break binary;
+        }
+    };
+    let fields = read.fields()?;
+    let (width, height, points) = read.organisation()?;
+    Ok(Header {
+        fields,
+        width,
+        height,
+        points,
+        binary,
+        lines: cursor.line_no,
+        data_start: cursor.pos,
+    })
+}
+
+/// Walks the header line by line.
+struct HeaderCursor<'a> {
+    bytes: &'a [u8],
+    /// Byte offset of the next line.
+    pos: usize,
+    /// Lines read so far.
+    line_no: usize,
+}
+
+impl<'a> HeaderCursor<'a> {
+    /// The next line, trimmed; an error at the end of the file or on a line that is not text.
+    fn next_line(&mut self) -> Result<&'a str, (usize, String)> {
+        let bytes = self.bytes;
+        if self.pos >= bytes.len() {
+            return Err((
+                0,
+                format!(
+                    "file ends after {} header lines without a DATA line (truncated?)",
+                    self.line_no
+                ),
+            ));
+        }
+        let end = bytes[self.pos..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(bytes.len(), |i| self.pos + i);
+        self.line_no += 1;
+        let raw = &bytes[self.pos..end];
+        self.pos = (end + 1).min(bytes.len());
+        Ok(std::str::from_utf8(raw)
+            .map_err(|_| (self.line_no, "header line is not text".to_string()))?
+            .trim())
+    }
+}
+
+/// One header line: `KEY values...`.
+struct HeaderLine<'a> {
+    line_no: usize,
+    key: &'a str,
+    values: Vec<&'a str>,
+}
+
+impl HeaderLine<'_> {
+    /// `problem` at this line.
+    fn err(&self, problem: String) -> (usize, String) {
+        (self.line_no, problem)
+    }
+
+    /// All values as non-negative integers.
+    fn numbers(&self, what: &str) -> Result<Vec<usize>, (usize, String)> {
+        self.values
+            .iter()
+            .map(|v| {
+                v.parse::<usize>().map_err(|_| {
+                    self.err(format!("{what} value `{v}` is not a non-negative integer"))
+                })
+            })
+            .collect()
+    }
+
+    /// The one value, a non-negative integer.
+    fn single(&self, what: &str) -> Result<usize, (usize, String)> {
+        match self.numbers(what)?[..] {
+            [n] => Ok(n),
+            _ => Err(self.err(format!("{what} needs one value, has {}", self.values.len()))),
+        }
+    }
+
+    /// An error when this key was `seen` before.
+    fn once(&self, seen: bool) -> Result<(), (usize, String)> {
+        if seen {
+            Err(self.err(format!("{} given twice", self.key)))
+        } else {
+            Ok(())
+        }
+    }
+
+    /// The values as field types.
+    fn types(&self) -> Result<Vec<FieldType>, (usize, String)> {
+        self.values
+            .iter()
+            .map(|t| match *t {
+                "I" => Ok(FieldType::I),
+                "U" => Ok(FieldType::U),
+                "F" => Ok(FieldType::F),
+                other => Err(self.err(format!("unknown TYPE `{other}` (use I, U or F)"))),
+            })
+            .collect()
+    }
+
+    /// Checks the VIEWPOINT's seven numbers.
+    fn viewpoint(&self) -> Result<(), (usize, String)> {
+        if self.values.len() != 7 || self.values.iter().any(|v| v.parse::<f64>().is_err()) {
+            return Err(self.err(format!(
+                "VIEWPOINT needs 7 numbers (tx ty tz qw qx qy qz), has `{}`",
+                self.values.join(" ")
+            )));
+        }
+        Ok(())
+    }
+
+    /// The DATA encoding: binary or not.
+    fn data_binary(&self) -> Result<bool, (usize, String)> {
+        match self.values[..] {
+            ["ascii"] => Ok(false),
+            ["binary"] => Ok(true),
+            ["binary_compressed"] => Err(self.err(
+                "DATA binary_compressed is not supported (save as binary or ascii)".to_string(),
+            )),
+            _ => Err(self.err(format!("unknown DATA encoding `{}`", self.values.join(" ")))),
+        }
+    }
+}
+
+/// The header's values as read, before they are checked against each other.
+#[derive(Default)]
+struct HeaderLines {
+    version: bool,
+    names: Option<Vec<String>>,
+    sizes: Option<Vec<usize>>,
+    types: Option<Vec<FieldType>>,
+    counts: Option<Vec<usize>>,
+    width: Option<usize>,
+    height: Option<usize>,
+    points: Option<usize>,
+    viewpoint: bool,
+}
+
+impl HeaderLines {
+    /// Reads one line (neither empty nor a comment); at the DATA line, whether the data is binary.
+    fn read(&mut self, line_no: usize, line: &str) -> Result<Option<bool>, (usize, String)> {
         let mut words = line.split_whitespace();
         let key = words.next().expect("non-empty line");
-        let values: Vec<&str> = words.collect();
-        let err = |problem: String| (line_no, problem);
-        let numbers = |what: &str| -> Result<Vec<usize>, (usize, String)> {
-            values
-                .iter()
-                .map(|v| {
-                    v.parse::<usize>().map_err(|_| {
-                        err(format!("{what} value `{v}` is not a non-negative integer"))
-                    })
-                })
-                .collect()
-        };
-        let single = |what: &str| -> Result<usize, (usize, String)> {
-            match numbers(what)?[..] {
-                [n] => Ok(n),
-                _ => Err(err(format!("{what} needs one value, has {}", values.len()))),
-            }
-        };
-        let duplicate = |seen: bool| {
-            if seen {
-                Err(err(format!("{key} given twice")))
-            } else {
-                Ok(())
-            }
+        let line = HeaderLine {
+            line_no,
+            key,
+            values: words.collect(),
         };
         match key {
             "VERSION" => {
-                duplicate(version.is_some())?;
-                match values[..] {
-                    ["0.7"] | [".7"] => version = Some(()),
+                line.once(self.version)?;
+                match line.values[..] {
+                    ["0.7"] | [".7"] => self.version = true,
                     _ => {
-                        return Err(err(format!(
+                        return Err(line.err(format!(
                             "unsupported PCD version `{}` (only 0.7)",
-                            values.join(" ")
+                            line.values.join(" ")
                         )))
                     }
                 }
             }
             "FIELDS" => {
-                duplicate(names.is_some())?;
-                names = Some(values.iter().map(|s| s.to_string()).collect());
+                line.once(self.names.is_some())?;
+                self.names = Some(line.values.iter().map(|s| s.to_string()).collect());
             }
             "SIZE" => {
-                duplicate(sizes.is_some())?;
-                sizes = Some(numbers("SIZE")?);
+                line.once(self.sizes.is_some())?;
+                self.sizes = Some(line.numbers("SIZE")?);
             }
             "TYPE" => {
-                duplicate(types.is_some())?;
-                types = Some(
-                    values
-                        .iter()
-                        .map(|t| match *t {
-                            "I" => Ok(FieldType::I),
-                            "U" => Ok(FieldType::U),
-                            "F" => Ok(FieldType::F),
-                            other => Err(err(format!("unknown TYPE `{other}` (use I, U or F)"))),
-                        })
-                        .collect::<Result<_, _>>()?,
-                );
+                line.once(self.types.is_some())?;
+                self.types = Some(line.types()?);
             }
             "COUNT" => {
-                duplicate(counts.is_some())?;
-                counts = Some(numbers("COUNT")?);
+                line.once(self.counts.is_some())?;
+                self.counts = Some(line.numbers("COUNT")?);
             }
             "WIDTH" => {
-                duplicate(width.is_some())?;
-                width = Some(single("WIDTH")?);
+                line.once(self.width.is_some())?;
+                self.width = Some(line.single("WIDTH")?);
             }
             "HEIGHT" => {
-                duplicate(height.is_some())?;
-                height = Some(single("HEIGHT")?);
+                line.once(self.height.is_some())?;
+                self.height = Some(line.single("HEIGHT")?);
             }
             "POINTS" => {
-                duplicate(points.is_some())?;
-                points = Some(single("POINTS")?);
+                line.once(self.points.is_some())?;
+                self.points = Some(line.single("POINTS")?);
             }
             "VIEWPOINT" => {
-                duplicate(viewpoint)?;
-                viewpoint = true;
-                if values.len() != 7 || values.iter().any(|v| v.parse::<f64>().is_err()) {
-                    return Err(err(format!(
-                        "VIEWPOINT needs 7 numbers (tx ty tz qw qx qy qz), has `{}`",
-                        values.join(" ")
-                    )));
-                }
+                line.once(self.viewpoint)?;
+                self.viewpoint = true;
+                line.viewpoint()?;
             }
-            "DATA" => match values[..] {
-                ["ascii"] => break false,
-                ["binary"] => break true,
-                ["binary_compressed"] => {
-                    return Err(err(
-                        "DATA binary_compressed is not supported (save as binary or ascii)"
-                            .to_string(),
-                    ))
-                }
-                _ => return Err(err(format!("unknown DATA encoding `{}`", values.join(" ")))),
-            },
-            other => return Err(err(format!("unknown header keyword `{other}`"))),
+            "DATA" => return line.data_binary().map(Some),
+            other => return Err(line.err(format!("unknown header keyword `{other}`"))),
         }
-    };
-    let missing = |what: &str| (0, format!("the header has no {what} line"));
-    version.ok_or_else(|| missing("VERSION"))?;
-    let names = names.ok_or_else(|| missing("FIELDS"))?;
-    let sizes = sizes.ok_or_else(|| missing("SIZE"))?;
-    let types = types.ok_or_else(|| missing("TYPE"))?;
-    let counts = counts.unwrap_or_else(|| vec![1; names.len()]);
-    if sizes.len() != names.len() || types.len() != names.len() || counts.len() != names.len() {
-        return Err((
-            0,
-            format!(
-                "{} FIELDS but {} SIZE, {} TYPE and {} COUNT values",
-                names.len(),
-                sizes.len(),
-                types.len(),
-                counts.len()
-            ),
-        ));
+        Ok(None)
     }
+
+    /// The fields, laid out: VERSION, FIELDS, SIZE and TYPE given, one value per field each.
+    fn fields(&mut self) -> Result<Vec<Field>, (usize, String)> {
+        if !self.version {
+            return Err(missing("VERSION"));
+        }
+        let names = self.names.take().ok_or_else(|| missing("FIELDS"))?;
+        let sizes = self.sizes.take().ok_or_else(|| missing("SIZE"))?;
+        let types = self.types.take().ok_or_else(|| missing("TYPE"))?;
+        let counts = self.counts.take().unwrap_or_else(|| vec![1; names.len()]);
+        if sizes.len() != names.len() || types.len() != names.len() || counts.len() != names.len() {
+            return Err((
+                0,
+                format!(
+                    "{} FIELDS but {} SIZE, {} TYPE and {} COUNT values",
+                    names.len(),
+                    sizes.len(),
+                    types.len(),
+                    counts.len()
+                ),
+            ));
+        }
+        lay_out_fields(names, sizes, types, counts)
+    }
+
+    /// WIDTH, HEIGHT and POINTS, checked against each other.
+    fn organisation(&self) -> Result<(u32, u32, usize), (usize, String)> {
+        let width = self.width.ok_or_else(|| missing("WIDTH"))?;
+        let height = self.height.ok_or_else(|| missing("HEIGHT"))?;
+        let (Ok(width), Ok(height)) = (u32::try_from(width), u32::try_from(height)) else {
+            return Err((0, format!("WIDTH {width} x HEIGHT {height} is too large")));
+        };
+        let cells = width as usize * height as usize;
+        let points = self.points.unwrap_or(cells);
+        if points != cells {
+            return Err((
+                0,
+                format!("POINTS {points} is not WIDTH {width} x HEIGHT {height} = {cells}"),
+            ));
+        }
+        Ok((width, height, points))
+    }
+}
+
+/// The error for a header without a `what` line.
+fn missing(what: &str) -> (usize, String) {
+    (0, format!("the header has no {what} line"))
+}
+
+/// The fields with their byte offsets; an error for a type and size PCD does not
+/// allow, a zero count, or a point size that overflows.
+fn lay_out_fields(
+    names: Vec<String>,
+    sizes: Vec<usize>,
+    types: Vec<FieldType>,
+    counts: Vec<usize>,
+) -> Result<Vec<Field>, (usize, String)> {
     let mut fields = Vec::with_capacity(names.len());
     let mut offset = 0;
     for (((name, size), kind), count) in names.into_iter().zip(sizes).zip(types).zip(counts) {
@@ -299,28 +422,7 @@ fn parse_header(bytes: &[u8]) -> Result<Header, (usize, String)> {
         });
         offset = end;
     }
-    let width = width.ok_or_else(|| missing("WIDTH"))?;
-    let height = height.ok_or_else(|| missing("HEIGHT"))?;
-    let (Ok(width), Ok(height)) = (u32::try_from(width), u32::try_from(height)) else {
-        return Err((0, format!("WIDTH {width} x HEIGHT {height} is too large")));
-    };
-    let cells = width as usize * height as usize;
-    let points = points.unwrap_or(cells);
-    if points != cells {
-        return Err((
-            0,
-            format!("POINTS {points} is not WIDTH {width} x HEIGHT {height} = {cells}"),
-        ));
-    }
-    Ok(Header {
-        fields,
-        width,
-        height,
-        points,
-        binary,
-        lines: line_no,
-        data_start: pos,
-    })
+    Ok(fields)
 }
 
 /// Parses a PCD point cloud; `source` names the file in errors.

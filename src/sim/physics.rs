@@ -58,7 +58,7 @@ use parry3d_f64::mass_properties::MassProperties;
 use parry3d_f64::shape::SharedShape;
 use parry3d_f64::transformation::vhacd::VHACDParameters;
 use rapier3d_f64::prelude::{
-    CCDSolver, ColliderBuilder, ColliderHandle, ColliderSet, DefaultBroadPhase,
+    CCDSolver, ColliderBuilder, ColliderHandle, ColliderSet, DefaultBroadPhase, GenericJoint,
     GenericJointBuilder, Group, ImpulseJointHandle, ImpulseJointSet, IntegrationParameters,
     InteractionGroups, IslandManager, JointAxesMask, JointAxis, MotorModel, MultibodyJointSet,
     NarrowPhase, PhysicsPipeline, RigidBodyBuilder, RigidBodyHandle, RigidBodySet,
@@ -555,6 +555,30 @@ struct World {
 }
 
 impl World {
+    /// An empty world with the options' step and solver iterations.
+    fn new(options: &PhysicsOptions) -> Self {
+        let mut params = IntegrationParameters {
+            dt: options.step_s,
+            length_unit: 0.1,
+            ..IntegrationParameters::default()
+        };
+        params.num_solver_iterations = options.solver_iterations;
+        World {
+            pipeline: PhysicsPipeline::new(),
+            params,
+            islands: IslandManager::new(),
+            broad_phase: DefaultBroadPhase::new(),
+            narrow_phase: NarrowPhase::new(),
+            bodies: RigidBodySet::new(),
+            colliders: ColliderSet::new(),
+            joints: ImpulseJointSet::new(),
+            multibody: MultibodyJointSet::new(),
+            ccd: CCDSolver::new(),
+            gravity: Vector3::new(0.0, 0.0, -9.81),
+            steps: 0,
+        }
+    }
+
     fn step(&mut self) {
         self.pipeline.step(
             &self.gravity,
@@ -661,6 +685,51 @@ pub fn lift_test(
     scene: &LiftScene,
     options: &PhysicsOptions,
 ) -> Result<LiftOutcome, PhysicsError> {
+    check_inputs(hand, scene, options)?;
+    let mut outcome = unstarted_outcome(object.mass_kg());
+    // The open hand must be clear of the object and the table before anything moves.
+    if let Some(collision) = start_collision(hand, object, scene) {
+        outcome.start_collision = Some(collision);
+        return Ok(outcome);
+    }
+
+    let mut rig = LiftRig::build(hand, object, scene, options);
+    let start_object = rig.object_pose();
+    outcome.close_s = rig.close();
+    rig.record_fingers(&mut outcome);
+    let closed_object = rig.object_pose();
+    outcome.moved_while_closing_m =
+        (closed_object.translation.vector - start_object.translation.vector).norm();
+    let palm_from_object_closed = scene.base_from_palm.inverse() * closed_object;
+
+    let palm_pose = rig.lift();
+    let rise =
+        |rig: &LiftRig| rig.object_pose().translation.vector.z - start_object.translation.vector.z;
+    outcome.lift_height_after_lift_m = rise(&rig);
+    // Hold, unless the object is plainly still down (it cannot rise while held still).
+    if outcome.lift_height_after_lift_m >= 0.25 * options.lift_m {
+        rig.hold();
+    }
+    outcome.lift_height_m = rise(&rig);
+    let palm_from_object = palm_pose.inverse() * rig.object_pose();
+    outcome.slip_m =
+        (palm_from_object.translation.vector - palm_from_object_closed.translation.vector).norm();
+    outcome.turn_rad = palm_from_object_closed
+        .rotation
+        .angle_to(&palm_from_object.rotation);
+    outcome.contacts = rig.contacts();
+    outcome.steps = rig.world.steps;
+    outcome.rule = judge(&outcome, options);
+    outcome.grade = outcome.rule.grade();
+    Ok(outcome)
+}
+
+/// Refuses invalid options, non-finite poses and a spread outside the joint's range.
+fn check_inputs(
+    hand: &HandModel,
+    scene: &LiftScene,
+    options: &PhysicsOptions,
+) -> Result<(), PhysicsError> {
     options.validate()?;
     finite(&scene.base_from_object, "object")?;
     finite(&scene.base_from_palm, "palm")?;
@@ -672,7 +741,12 @@ pub fn lift_test(
             upper_rad,
         });
     }
-    let mut outcome = LiftOutcome {
+    Ok(())
+}
+
+/// The outcome before any step: a start-collision failure with nothing measured.
+fn unstarted_outcome(mass_kg: f64) -> LiftOutcome {
+    LiftOutcome {
         grade: Grade::Failure,
         rule: LiftRule::StartCollision,
         start_collision: None,
@@ -687,14 +761,21 @@ pub fn lift_test(
         fingers: [FingerPhase::Closing; 3],
         close_s: 0.0,
         steps: 0,
-        mass_kg: object.mass_kg(),
-    };
-    // The open hand must be clear of the object and the table before anything moves.
+        mass_kg,
+    }
+}
+
+/// The open hand's collision with the object or the table at the start, if any.
+fn start_collision(
+    hand: &HandModel,
+    object: &PhysicsObject,
+    scene: &LiftScene,
+) -> Option<StartCollision> {
     let object_from_palm = scene.base_from_object.inverse() * scene.base_from_palm;
     let table_in_object = scene
         .table_height_m
         .map(|h| h - scene.base_from_object.translation.vector.z);
-    let start = match table_in_object {
+    match table_in_object {
         Some(h) => open_hand_collision(
             hand,
             &object.grasp.clone().with_table(Some(h)),
@@ -702,297 +783,13 @@ pub fn lift_test(
             scene.spread_rad,
         ),
         None => open_hand_collision(hand, &object.grasp, &object_from_palm, scene.spread_rad),
-    };
-    if let Some(collision) = start {
-        outcome.start_collision = Some(collision);
-        return Ok(outcome);
     }
+}
 
-    let mut params = IntegrationParameters {
-        dt: options.step_s,
-        length_unit: 0.1,
-        ..IntegrationParameters::default()
-    };
-    params.num_solver_iterations = options.solver_iterations;
-    let mut world = World {
-        pipeline: PhysicsPipeline::new(),
-        params,
-        islands: IslandManager::new(),
-        broad_phase: DefaultBroadPhase::new(),
-        narrow_phase: NarrowPhase::new(),
-        bodies: RigidBodySet::new(),
-        colliders: ColliderSet::new(),
-        joints: ImpulseJointSet::new(),
-        multibody: MultibodyJointSet::new(),
-        ccd: CCDSolver::new(),
-        gravity: Vector3::new(0.0, 0.0, -9.81),
-        steps: 0,
-    };
-    let mu = options.friction;
-
-    if let Some(h) = scene.table_height_m {
-        let o = scene.base_from_object.translation.vector;
-        let table = world
-            .bodies
-            .insert(RigidBodyBuilder::fixed().pose(Isometry3::translation(o.x, o.y, h - 0.025)));
-        world.colliders.insert_with_parent(
-            ColliderBuilder::cuboid(1.0, 1.0, 0.025)
-                .friction(mu)
-                .collision_groups(InteractionGroups::new(TABLE, HAND | OBJECT)),
-            table,
-            &mut world.bodies,
-        );
-    }
-
-    let body = world.bodies.insert(
-        RigidBodyBuilder::dynamic()
-            .pose(scene.base_from_object)
-            .can_sleep(false)
-            .additional_mass_properties(object.mass),
-    );
-    let object_collider = world.colliders.insert_with_parent(
-        ColliderBuilder::new(object.shape.clone())
-            .density(0.0)
-            .friction(mu)
-            .collision_groups(InteractionGroups::new(OBJECT, HAND | TABLE)),
-        body,
-        &mut world.bodies,
-    );
-
-    let palm = world
-        .bodies
-        .insert(RigidBodyBuilder::kinematic_position_based().pose(scene.base_from_palm));
-    // Colliders of each part: palm, then F1 F2 F3 (both links).
-    let mut part_colliders: Vec<Vec<ColliderHandle>> =
-        vec![attach(&mut world, palm, &hand.palm, mu, 0.0)];
-    let mut fingers = Vec::with_capacity(3);
-    for finger in &hand.fingers {
-        let palm_from_flex_base = finger.palm_from_flex_base(scene.spread_rad);
-        let flex0 = finger.flex_limits_rad.0;
-        let distal0 = finger.coupled_distal_rad(flex0);
-        let (p, d) = finger.link_poses_from_base(&palm_from_flex_base, flex0, distal0);
-        let proximal = world.bodies.insert(link_body(scene.base_from_palm * p));
-        let distal = world.bodies.insert(link_body(scene.base_from_palm * d));
-        let mut colliders = attach(
-            &mut world,
-            proximal,
-            &finger.proximal,
-            mu,
-            LINK_DENSITY_KG_M3,
-        );
-        colliders.extend(attach(
-            &mut world,
-            distal,
-            &finger.distal,
-            mu,
-            LINK_DENSITY_KG_M3,
-        ));
-        part_colliders.push(colliders);
-        let (speed, torque) = flex_drive(finger);
-        let flex_align = x_onto(&finger.flex_axis());
-        let flex = GenericJointBuilder::new(JointAxesMask::LOCKED_REVOLUTE_AXES)
-            .local_frame1(palm_from_flex_base * flex_align)
-            .local_frame2(Isometry3::from_parts(Translation3::identity(), flex_align))
-            .limits(
-                JointAxis::AngX,
-                [finger.flex_limits_rad.0, finger.flex_limits_rad.1],
-            )
-            .motor_model(JointAxis::AngX, MotorModel::ForceBased)
-            .motor_velocity(JointAxis::AngX, speed, VELOCITY_GAIN)
-            .motor_max_force(JointAxis::AngX, torque)
-            .build();
-        let distal_align = x_onto(&finger.distal_axis());
-        let coupling = GenericJointBuilder::new(JointAxesMask::LOCKED_REVOLUTE_AXES)
-            .local_frame1(finger.proximal_from_distal_base() * distal_align)
-            .local_frame2(Isometry3::from_parts(
-                Translation3::identity(),
-                distal_align,
-            ))
-            .limits(
-                JointAxis::AngX,
-                [finger.distal_limits_rad.0, finger.distal_limits_rad.1],
-            )
-            .motor_model(JointAxis::AngX, MotorModel::ForceBased)
-            .motor_position(JointAxis::AngX, distal0, HOLD_STIFFNESS, HOLD_DAMPING)
-            .motor_max_force(JointAxis::AngX, GEAR_HOLD_FACTOR * torque)
-            .build();
-        let flex_joint = world.joints.insert(palm, proximal, flex, true);
-        let distal_joint = world.joints.insert(proximal, distal, coupling, true);
-        fingers.push(FingerBody {
-            proximal,
-            distal,
-            flex_joint,
-            distal_joint,
-            palm_from_flex_base,
-            phase: FingerPhase::Closing,
-            stalled_s: 0.0,
-            last_flex: flex0,
-            last_distal: distal0,
-        });
-    }
-
-    let dt = options.step_s;
-    let angles = |world: &World, f: &FingerBody, finger: &Finger| {
-        let base = scene.base_from_palm * f.palm_from_flex_base;
-        let proximal = world.pose(f.proximal);
-        let flex = twist_about(
-            &(base.rotation.inverse() * proximal.rotation),
-            &finger.flex_axis(),
-        );
-        let distal_base = proximal * finger.proximal_from_distal_base();
-        let distal = twist_about(
-            &(distal_base.rotation.inverse() * world.pose(f.distal).rotation),
-            &finger.distal_axis(),
-        );
-        (flex, distal)
-    };
-
-    // Close.
-    let start_object = world.pose(body);
-    let mut t = 0.0;
-    while t < options.close_timeout_s
-        && fingers
-            .iter()
-            .any(|f| matches!(f.phase, FingerPhase::Closing | FingerPhase::Breakaway))
-    {
-        press(&mut world, &fingers, hand);
-        world.step();
-        t += dt;
-        for (f, finger) in fingers.iter_mut().zip(&hand.fingers) {
-            let (flex, distal) = angles(&world, f, finger);
-            let (speed, torque) = flex_drive(finger);
-            match f.phase {
-                FingerPhase::Closing => {
-                    // The train keeps the distal joint coupled to the flex joint.
-                    let coupled = finger
-                        .coupled_distal_rad(flex)
-                        .clamp(finger.distal_limits_rad.0, finger.distal_limits_rad.1);
-                    if let Some(j) = world.joints.get_mut(f.distal_joint, false) {
-                        j.data.set_motor_position(
-                            JointAxis::AngX,
-                            coupled,
-                            HOLD_STIFFNESS,
-                            HOLD_DAMPING,
-                        );
-                    }
-                    let moving = (flex - f.last_flex).abs() / dt;
-                    f.stalled_s = if moving < STALL_RAD_S {
-                        f.stalled_s + dt
-                    } else {
-                        0.0
-                    };
-                    if flex >= finger.flex_limits_rad.1 - 1e-3 {
-                        f.phase = FingerPhase::AtLimit;
-                    } else if f.stalled_s >= STALL_TIME_S && t > 2.0 * STALL_TIME_S {
-                        // TorqueSwitch breakaway: the proximal holds, the distal closes on.
-                        f.phase = FingerPhase::Breakaway;
-                        f.stalled_s = 0.0;
-                        if let Some(j) = world.joints.get_mut(f.flex_joint, false) {
-                            j.data
-                                .set_motor_position(
-                                    JointAxis::AngX,
-                                    flex,
-                                    HOLD_STIFFNESS,
-                                    HOLD_DAMPING,
-                                )
-                                .set_motor_max_force(JointAxis::AngX, GEAR_HOLD_FACTOR * torque);
-                        }
-                        if let Some(j) = world.joints.get_mut(f.distal_joint, true) {
-                            j.data
-                                .set_motor_velocity(
-                                    JointAxis::AngX,
-                                    speed * PROXIMAL_TRAIN / DISTAL_TRAIN,
-                                    VELOCITY_GAIN,
-                                )
-                                .set_motor_max_force(
-                                    JointAxis::AngX,
-                                    torque * DISTAL_TRAIN / PROXIMAL_TRAIN,
-                                );
-                        }
-                    }
-                }
-                FingerPhase::Breakaway => {
-                    let moving = (distal - f.last_distal).abs() / dt;
-                    f.stalled_s = if moving < STALL_RAD_S {
-                        f.stalled_s + dt
-                    } else {
-                        0.0
-                    };
-                    if distal >= finger.distal_limits_rad.1 - 1e-3 || f.stalled_s >= STALL_TIME_S {
-                        f.phase = FingerPhase::Stopped;
-                        // From now on the stalled motor's torque is applied as such
-                        // ([`press`]), not through the velocity motor.
-                        if let Some(j) = world.joints.get_mut(f.distal_joint, true) {
-                            j.data.set_motor_max_force(JointAxis::AngX, 0.0);
-                        }
-                    }
-                }
-                FingerPhase::AtLimit | FingerPhase::Stopped => {}
-            }
-            f.last_flex = flex;
-            f.last_distal = distal;
-        }
-    }
-    outcome.close_s = t;
-    for (i, (f, finger)) in fingers.iter().zip(&hand.fingers).enumerate() {
-        let (flex, distal) = angles(&world, f, finger);
-        outcome.flex_rad[i] = flex;
-        outcome.distal_rad[i] = distal;
-        outcome.fingers[i] = f.phase;
-    }
-    let closed_object = world.pose(body);
-    outcome.moved_while_closing_m =
-        (closed_object.translation.vector - start_object.translation.vector).norm();
-    let palm_from_object_closed = scene.base_from_palm.inverse() * closed_object;
-
-    // Lift: smooth step from 0 to lift_m.
-    let lift_s = 1.5 * options.lift_m / options.lift_speed_m_s;
-    let mut t = 0.0;
-    let mut palm_pose = scene.base_from_palm;
-    while t < lift_s {
-        t = (t + dt).min(lift_s);
-        let s = t / lift_s;
-        let z = options.lift_m * s * s * (3.0 - 2.0 * s);
-        palm_pose = Translation3::new(0.0, 0.0, z) * scene.base_from_palm;
-        world.bodies[palm].set_next_kinematic_position(palm_pose);
-        press(&mut world, &fingers, hand);
-        world.step();
-    }
-    let rise =
-        |world: &World| world.pose(body).translation.vector.z - start_object.translation.vector.z;
-    outcome.lift_height_after_lift_m = rise(&world);
-    // Hold, unless the object is plainly still down (it cannot rise while held still).
-    if outcome.lift_height_after_lift_m >= 0.25 * options.lift_m {
-        let mut t = 0.0;
-        while t < options.hold_s {
-            press(&mut world, &fingers, hand);
-            world.step();
-            t += dt;
-        }
-    }
-    outcome.lift_height_m = rise(&world);
-    let palm_from_object = palm_pose.inverse() * world.pose(body);
-    outcome.slip_m =
-        (palm_from_object.translation.vector - palm_from_object_closed.translation.vector).norm();
-    outcome.turn_rad = palm_from_object_closed
-        .rotation
-        .angle_to(&palm_from_object.rotation);
-    outcome.contacts = part_colliders
-        .iter()
-        .enumerate()
-        .filter(|(_, colliders)| {
-            colliders.iter().any(|&c| {
-                world
-                    .narrow_phase
-                    .contact_pair(object_collider, c)
-                    .is_some_and(|p| p.has_any_active_contact)
-            })
-        })
-        .map(|(i, _)| part_name(i))
-        .collect();
-    outcome.steps = world.steps;
+/// The verdict's rule from the measured outcome.
+fn judge(outcome: &LiftOutcome, options: &PhysicsOptions) -> LiftRule {
     let half = 0.5 * options.lift_m;
-    outcome.rule = if outcome.lift_height_m >= half {
+    if outcome.lift_height_m >= half {
         if outcome.slip_m < options.success_slip_m && outcome.turn_rad < options.success_turn_rad {
             LiftRule::Held
         } else {
@@ -1004,9 +801,349 @@ pub fn lift_test(
         LiftRule::PushedAway
     } else {
         LiftRule::NotLifted
+    }
+}
+
+/// Adds the fixed table slab, its top at `height_m`, under the object.
+fn add_table(world: &mut World, base_from_object: &Pose, height_m: f64, mu: f64) {
+    let o = base_from_object.translation.vector;
+    let table = world
+        .bodies
+        .insert(RigidBodyBuilder::fixed().pose(Isometry3::translation(o.x, o.y, height_m - 0.025)));
+    world.colliders.insert_with_parent(
+        ColliderBuilder::cuboid(1.0, 1.0, 0.025)
+            .friction(mu)
+            .collision_groups(InteractionGroups::new(TABLE, HAND | OBJECT)),
+        table,
+        &mut world.bodies,
+    );
+}
+
+/// Adds the object as one dynamic body; its body and collider.
+fn add_object(
+    world: &mut World,
+    object: &PhysicsObject,
+    base_from_object: Pose,
+    mu: f64,
+) -> (RigidBodyHandle, ColliderHandle) {
+    let body = world.bodies.insert(
+        RigidBodyBuilder::dynamic()
+            .pose(base_from_object)
+            .can_sleep(false)
+            .additional_mass_properties(object.mass),
+    );
+    let collider = world.colliders.insert_with_parent(
+        ColliderBuilder::new(object.shape.clone())
+            .density(0.0)
+            .friction(mu)
+            .collision_groups(InteractionGroups::new(OBJECT, HAND | TABLE)),
+        body,
+        &mut world.bodies,
+    );
+    (body, collider)
+}
+
+/// Adds `finger`'s links, open, and its joints to `palm`; the finger and its links'
+/// colliders.
+fn add_finger(
+    world: &mut World,
+    palm: RigidBodyHandle,
+    finger: &Finger,
+    scene: &LiftScene,
+    mu: f64,
+) -> (FingerBody, Vec<ColliderHandle>) {
+    let palm_from_flex_base = finger.palm_from_flex_base(scene.spread_rad);
+    let flex0 = finger.flex_limits_rad.0;
+    let distal0 = finger.coupled_distal_rad(flex0);
+    let (p, d) = finger.link_poses_from_base(&palm_from_flex_base, flex0, distal0);
+    let proximal = world.bodies.insert(link_body(scene.base_from_palm * p));
+    let distal = world.bodies.insert(link_body(scene.base_from_palm * d));
+    let mut colliders = attach(world, proximal, &finger.proximal, mu, LINK_DENSITY_KG_M3);
+    colliders.extend(attach(
+        world,
+        distal,
+        &finger.distal,
+        mu,
+        LINK_DENSITY_KG_M3,
+    ));
+    let flex = flex_motor_joint(finger, &palm_from_flex_base);
+    let coupling = distal_coupling_joint(finger, distal0);
+    let flex_joint = world.joints.insert(palm, proximal, flex, true);
+    let distal_joint = world.joints.insert(proximal, distal, coupling, true);
+    let body = FingerBody {
+        proximal,
+        distal,
+        flex_joint,
+        distal_joint,
+        palm_from_flex_base,
+        phase: FingerPhase::Closing,
+        stalled_s: 0.0,
+        last_flex: flex0,
+        last_distal: distal0,
     };
-    outcome.grade = outcome.rule.grade();
-    Ok(outcome)
+    (body, colliders)
+}
+
+/// The flex joint, palm to proximal link: a velocity motor closing at the URDF's
+/// speed with at most its effort.
+fn flex_motor_joint(finger: &Finger, palm_from_flex_base: &Pose) -> GenericJoint {
+    let (speed, torque) = flex_drive(finger);
+    let flex_align = x_onto(&finger.flex_axis());
+    GenericJointBuilder::new(JointAxesMask::LOCKED_REVOLUTE_AXES)
+        .local_frame1(palm_from_flex_base * flex_align)
+        .local_frame2(Isometry3::from_parts(Translation3::identity(), flex_align))
+        .limits(
+            JointAxis::AngX,
+            [finger.flex_limits_rad.0, finger.flex_limits_rad.1],
+        )
+        .motor_model(JointAxis::AngX, MotorModel::ForceBased)
+        .motor_velocity(JointAxis::AngX, speed, VELOCITY_GAIN)
+        .motor_max_force(JointAxis::AngX, torque)
+        .build()
+}
+
+/// The distal joint, proximal to distal link: the gear train's coupling, held at
+/// `distal0` to start with.
+fn distal_coupling_joint(finger: &Finger, distal0: f64) -> GenericJoint {
+    let (_, torque) = flex_drive(finger);
+    let distal_align = x_onto(&finger.distal_axis());
+    GenericJointBuilder::new(JointAxesMask::LOCKED_REVOLUTE_AXES)
+        .local_frame1(finger.proximal_from_distal_base() * distal_align)
+        .local_frame2(Isometry3::from_parts(
+            Translation3::identity(),
+            distal_align,
+        ))
+        .limits(
+            JointAxis::AngX,
+            [finger.distal_limits_rad.0, finger.distal_limits_rad.1],
+        )
+        .motor_model(JointAxis::AngX, MotorModel::ForceBased)
+        .motor_position(JointAxis::AngX, distal0, HOLD_STIFFNESS, HOLD_DAMPING)
+        .motor_max_force(JointAxis::AngX, GEAR_HOLD_FACTOR * torque)
+        .build()
+}
+
+impl FingerBody {
+    /// The flex and distal angles (rad), the palm's start pose `base_from_palm`.
+    fn angles(&self, world: &World, base_from_palm: &Pose, finger: &Finger) -> (f64, f64) {
+        let base = base_from_palm * self.palm_from_flex_base;
+        let proximal = world.pose(self.proximal);
+        let flex = twist_about(
+            &(base.rotation.inverse() * proximal.rotation),
+            &finger.flex_axis(),
+        );
+        let distal_base = proximal * finger.proximal_from_distal_base();
+        let distal = twist_about(
+            &(distal_base.rotation.inverse() * world.pose(self.distal).rotation),
+            &finger.distal_axis(),
+        );
+        (flex, distal)
+    }
+
+    /// Counts the time stalled: up by `dt` when slower than [`STALL_RAD_S`], else reset.
+    fn track_stall(&mut self, moving: f64, dt: f64) {
+        self.stalled_s = if moving < STALL_RAD_S {
+            self.stalled_s + dt
+        } else {
+            0.0
+        };
+    }
+
+    /// One step of a closing finger at time `t`: keeps the distal coupled, and goes
+    /// to [`FingerPhase::AtLimit`] or breaks away when stalled.
+    fn step_closing(&mut self, world: &mut World, finger: &Finger, flex: f64, t: f64, dt: f64) {
+        let (speed, torque) = flex_drive(finger);
+        // The train keeps the distal joint coupled to the flex joint.
+        let coupled = finger
+            .coupled_distal_rad(flex)
+            .clamp(finger.distal_limits_rad.0, finger.distal_limits_rad.1);
+        if let Some(j) = world.joints.get_mut(self.distal_joint, false) {
+            j.data
+                .set_motor_position(JointAxis::AngX, coupled, HOLD_STIFFNESS, HOLD_DAMPING);
+        }
+        self.track_stall((flex - self.last_flex).abs() / dt, dt);
+        if flex >= finger.flex_limits_rad.1 - 1e-3 {
+            self.phase = FingerPhase::AtLimit;
+        } else if self.stalled_s >= STALL_TIME_S && t > 2.0 * STALL_TIME_S {
+            // TorqueSwitch breakaway: the proximal holds, the distal closes on.
+            self.phase = FingerPhase::Breakaway;
+            self.stalled_s = 0.0;
+            if let Some(j) = world.joints.get_mut(self.flex_joint, false) {
+                j.data
+                    .set_motor_position(JointAxis::AngX, flex, HOLD_STIFFNESS, HOLD_DAMPING)
+                    .set_motor_max_force(JointAxis::AngX, GEAR_HOLD_FACTOR * torque);
+            }
+            if let Some(j) = world.joints.get_mut(self.distal_joint, true) {
+                j.data
+                    .set_motor_velocity(
+                        JointAxis::AngX,
+                        speed * PROXIMAL_TRAIN / DISTAL_TRAIN,
+                        VELOCITY_GAIN,
+                    )
+                    .set_motor_max_force(JointAxis::AngX, torque * DISTAL_TRAIN / PROXIMAL_TRAIN);
+            }
+        }
+    }
+
+    /// One step of a finger broken away: stops when the distal link is blocked or at
+    /// its limit.
+    fn step_breakaway(&mut self, world: &mut World, finger: &Finger, distal: f64, dt: f64) {
+        self.track_stall((distal - self.last_distal).abs() / dt, dt);
+        if distal >= finger.distal_limits_rad.1 - 1e-3 || self.stalled_s >= STALL_TIME_S {
+            self.phase = FingerPhase::Stopped;
+            // From now on the stalled motor's torque is applied as such
+            // ([`press`]), not through the velocity motor.
+            if let Some(j) = world.joints.get_mut(self.distal_joint, true) {
+                j.data.set_motor_max_force(JointAxis::AngX, 0.0);
+            }
+        }
+    }
+}
+
+/// The world of one lift test with the handles its phases need.
+struct LiftRig<'a> {
+    hand: &'a HandModel,
+    scene: &'a LiftScene,
+    options: &'a PhysicsOptions,
+    world: World,
+    object_body: RigidBodyHandle,
+    object_collider: ColliderHandle,
+    palm: RigidBodyHandle,
+    /// Colliders of each part: palm, then F1 F2 F3 (both links).
+    part_colliders: Vec<Vec<ColliderHandle>>,
+    fingers: Vec<FingerBody>,
+}
+
+impl<'a> LiftRig<'a> {
+    /// Builds the world: table, object, kinematic palm and the open fingers.
+    fn build(
+        hand: &'a HandModel,
+        object: &PhysicsObject,
+        scene: &'a LiftScene,
+        options: &'a PhysicsOptions,
+    ) -> Self {
+        let mut world = World::new(options);
+        let mu = options.friction;
+        if let Some(h) = scene.table_height_m {
+            add_table(&mut world, &scene.base_from_object, h, mu);
+        }
+        let (object_body, object_collider) =
+            add_object(&mut world, object, scene.base_from_object, mu);
+        let palm = world
+            .bodies
+            .insert(RigidBodyBuilder::kinematic_position_based().pose(scene.base_from_palm));
+        let mut part_colliders = vec![attach(&mut world, palm, &hand.palm, mu, 0.0)];
+        let mut fingers = Vec::with_capacity(3);
+        for finger in &hand.fingers {
+            let (body, colliders) = add_finger(&mut world, palm, finger, scene, mu);
+            part_colliders.push(colliders);
+            fingers.push(body);
+        }
+        LiftRig {
+            hand,
+            scene,
+            options,
+            world,
+            object_body,
+            object_collider,
+            palm,
+            part_colliders,
+            fingers,
+        }
+    }
+
+    /// The object's pose now.
+    fn object_pose(&self) -> Pose {
+        self.world.pose(self.object_body)
+    }
+
+    /// One step with the stopped fingers pressing.
+    fn press_and_step(&mut self) {
+        press(&mut self.world, &self.fingers, self.hand);
+        self.world.step();
+    }
+
+    /// Closes until every finger has stopped, at most the close timeout; the time taken (s).
+    fn close(&mut self) -> f64 {
+        let dt = self.options.step_s;
+        let mut t = 0.0;
+        while t < self.options.close_timeout_s
+            && self
+                .fingers
+                .iter()
+                .any(|f| matches!(f.phase, FingerPhase::Closing | FingerPhase::Breakaway))
+        {
+            self.press_and_step();
+            t += dt;
+            for (f, finger) in self.fingers.iter_mut().zip(&self.hand.fingers) {
+                let (flex, distal) = f.angles(&self.world, &self.scene.base_from_palm, finger);
+                match f.phase {
+                    FingerPhase::Closing => f.step_closing(&mut self.world, finger, flex, t, dt),
+                    FingerPhase::Breakaway => f.step_breakaway(&mut self.world, finger, distal, dt),
+                    FingerPhase::AtLimit | FingerPhase::Stopped => {}
+                }
+                f.last_flex = flex;
+                f.last_distal = distal;
+            }
+        }
+        t
+    }
+
+    /// Writes the fingers' angles and phases at the end of closing into `outcome`.
+    fn record_fingers(&self, outcome: &mut LiftOutcome) {
+        for (i, (f, finger)) in self.fingers.iter().zip(&self.hand.fingers).enumerate() {
+            let (flex, distal) = f.angles(&self.world, &self.scene.base_from_palm, finger);
+            outcome.flex_rad[i] = flex;
+            outcome.distal_rad[i] = distal;
+            outcome.fingers[i] = f.phase;
+        }
+    }
+
+    /// Lifts the palm `lift_m` straight up on a smooth step; the palm's final pose.
+    fn lift(&mut self) -> Pose {
+        let options = self.options;
+        let base_from_palm = self.scene.base_from_palm;
+        let dt = options.step_s;
+        let lift_s = 1.5 * options.lift_m / options.lift_speed_m_s;
+        let mut t = 0.0;
+        let mut palm_pose = base_from_palm;
+        while t < lift_s {
+            t = (t + dt).min(lift_s);
+            let s = t / lift_s;
+            let z = options.lift_m * s * s * (3.0 - 2.0 * s);
+            palm_pose = Translation3::new(0.0, 0.0, z) * base_from_palm;
+            self.world.bodies[self.palm].set_next_kinematic_position(palm_pose);
+            self.press_and_step();
+        }
+        palm_pose
+    }
+
+    /// Holds the palm still for `hold_s`.
+    fn hold(&mut self) {
+        let dt = self.options.step_s;
+        let mut t = 0.0;
+        while t < self.options.hold_s {
+            self.press_and_step();
+            t += dt;
+        }
+    }
+
+    /// The hand parts touching the object now (see [`LiftOutcome::contacts`]).
+    fn contacts(&self) -> Vec<String> {
+        self.part_colliders
+            .iter()
+            .enumerate()
+            .filter(|(_, colliders)| {
+                colliders.iter().any(|&c| {
+                    self.world
+                        .narrow_phase
+                        .contact_pair(self.object_collider, c)
+                        .is_some_and(|p| p.has_any_active_contact)
+                })
+            })
+            .map(|(i, _)| part_name(i))
+            .collect()
+    }
 }
 
 #[cfg(test)]
