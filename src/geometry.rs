@@ -94,6 +94,12 @@ pub fn param_difference(a: &PoseParams, b: &PoseParams) -> PoseParams {
     d
 }
 
+/// The rigid motion that turns by `rotation` about the point `centre` (which stays
+/// where it is).
+pub fn rotation_about(centre: &Vector3<f64>, rotation: UnitQuaternion<f64>) -> Pose {
+    Translation3::from(*centre) * rotation * Translation3::from(-centre)
+}
+
 /// Position (m) and rotation (rad) distance between two poses.
 pub fn pose_error(a: &Pose, b: &Pose) -> (f64, f64) {
     let dp = (a.translation.vector - b.translation.vector).norm();
@@ -282,6 +288,15 @@ pub fn tilt_and_yaw_deg(object: &Pose, model: &Pose) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rotation_about_a_point_keeps_the_point() {
+        let c = Vector3::new(0.6, 0.1, 0.0);
+        let turn = rotation_about(&c, UnitQuaternion::from_scaled_axis(Vector3::z() * 0.5));
+        assert!((turn * nalgebra::Point3::from(c) - nalgebra::Point3::from(c)).norm() < 1e-12);
+        let p = turn * nalgebra::Point3::new(0.7, 0.1, 0.2);
+        assert!(((p.coords - c).xy().norm() - 0.1).abs() < 1e-12 && (p.z - 0.2).abs() < 1e-12);
+    }
 
     #[test]
     fn params_round_trip() {

@@ -170,12 +170,11 @@ pub fn plan_trial(
     let protocol = request.protocol().map_err(|e| other(e.to_string()))?;
     let options = trial_options(config, db, method, protocol).map_err(|e| other(e.to_string()))?;
     let seen_points = fits.seen().map_err(|e| other(e.to_string()))?;
-    let seen_cloud = PointCloud::from_points(seen_points.iter().map(|&p| p.into()).collect());
     let seen = match protocol {
         Protocol::Cell if !seen_points.is_empty() => Some(
             SeenSurface::new(
                 hand,
-                &seen_cloud,
+                &PointCloud::from_points(seen_points.iter().map(|&p| p.into()).collect()),
                 SeenSurfaceOptions::along_approach(&options, true),
             )
             .map_err(|e| other(e.to_string()))?,

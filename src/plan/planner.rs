@@ -55,7 +55,7 @@ use super::reach::Reachability;
 use super::seen::{Intrusion, SeenSurface};
 use super::{ExampleGrasp, Kernel, ModelFit, PlanError, Weights};
 use crate::config::CellConfig;
-use crate::geometry::{pose_error, pose_from_params, Pose, PoseJson};
+use crate::geometry::{pose_error, pose_from_params, rotation_about, Pose, PoseJson};
 use crate::robot::ik::IkSolution;
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, UnreachableReason};
@@ -738,23 +738,21 @@ fn turned_and_tilted(pose: &Pose, axis_xy: [f64; 2]) -> Vec<Pose> {
         0.0
     };
     let centre = p + approach * along;
-    let about = |centre: nalgebra::Vector3<f64>, rotation: Pose| {
-        Translation3::from(centre) * rotation * Translation3::from(-centre)
-    };
+    let axis = nalgebra::Vector3::new(axis_xy[0], axis_xy[1], 0.0);
+    let by = nalgebra::UnitQuaternion::from_scaled_axis;
     let mut out: Vec<(f64, Pose)> = Vec::new();
     for &tilt in &APPROACH_TILTS_RAD {
         if tilt != 0.0 && !horizontal {
             continue;
         }
-        let tilted = about(centre, Pose::rotation(side.normalize() * tilt)) * pose;
+        let tilted = rotation_about(&centre, by(side.normalize() * tilt)) * pose;
         for &turn in &AXIS_TURNS_RAD {
             if tilt == 0.0 && turn == 0.0 {
                 continue;
             }
-            let axis = nalgebra::Vector3::new(axis_xy[0], axis_xy[1], 0.0);
             out.push((
                 tilt.abs() + turn.abs(),
-                about(axis, Pose::rotation(z * turn)) * tilted,
+                rotation_about(&axis, by(z * turn)) * tilted,
             ));
         }
     }
@@ -1030,6 +1028,10 @@ fn repair_single(
 mod tests {
     use super::*;
 
+    use crate::geometry::{params_from_pose, pose_from_params, wrap_angle, PoseParams};
+    use crate::plan::test_support::grasp;
+    use crate::robot::Unreachable;
+
     #[test]
     fn a_side_grasp_is_tried_from_other_sides_and_from_above_still_aiming_at_the_object() {
         // Approaching along +x, palm 5 cm before an object whose axis is at (0.65, 0).
@@ -1058,9 +1060,6 @@ mod tests {
         let top = pose_from_params(&[0.65, 0.0, 0.2, std::f64::consts::PI, 0.0, 0.0]);
         assert_eq!(turned_and_tilted(&top, [0.65, 0.0]).len(), 4);
     }
-    use crate::geometry::{params_from_pose, pose_from_params, wrap_angle, PoseParams};
-    use crate::plan::test_support::grasp;
-    use crate::robot::Unreachable;
     use std::f64::consts::PI;
 
     fn fit(name: &str, p: PoseParams, eps_m2: f64) -> ModelFit {

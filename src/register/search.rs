@@ -14,7 +14,7 @@ use super::ransac::distinct;
 use super::score::candidate_cost;
 use super::target::PreparedTarget;
 use super::RegisterParams;
-use crate::geometry::Pose;
+use crate::geometry::{rotation_about, Pose};
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
 
 /// A scored hypothesis `model_from_target`.
@@ -64,9 +64,10 @@ fn seeds(
     let mut seeds: Vec<Pose> = Vec::with_capacity(2 * hypotheses.len() + 1);
     for h in hypotheses {
         let c = h * model_centre;
-        let flip = Translation3::from(c.coords)
-            * UnitQuaternion::from_axis_angle(&side, std::f64::consts::PI)
-            * Translation3::from(-c.coords);
+        let flip = rotation_about(
+            &c.coords,
+            UnitQuaternion::from_axis_angle(&side, std::f64::consts::PI),
+        );
         seeds.push(*h);
         seeds.push(flip * h);
     }
@@ -104,7 +105,7 @@ fn yaw_sweep(placements: &[Pose], model: &PreparedModel, params: &RegisterParams
         for k in 0..params.yaw_steps {
             let angle = std::f64::consts::TAU * k as f64 / params.yaw_steps as f64;
             let rot = UnitQuaternion::from_axis_angle(&up, angle);
-            let about_c = Translation3::from(c) * rot * Translation3::from(-c);
+            let about_c = rotation_about(&c, rot);
             out.push((about_c * h).inverse());
         }
     }
