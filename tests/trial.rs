@@ -4,8 +4,8 @@
 use graspcell::fsio::TempDir;
 use graspcell::geometry::PoseJson;
 use graspcell::trial::{
-    FailureCause, Grade, GradeSource, Grading, NewTrial, ObjectRef, Placement, Report, TrialError,
-    TrialId, TrialLog, UtcTimestamp,
+    FailureCause, Grade, GradeSource, Grading, NewTrial, ObjectRef, Placement, Report, Scope,
+    TrialError, TrialId, TrialLog, UtcTimestamp,
 };
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -98,7 +98,7 @@ fn sign_test_p_values_equal_exact_integer_computation() {
         let path = dir.join(format!("{wins}-{losses}-{ties}.sqlite"));
         let mut log = TrialLog::open(&path).unwrap();
         paired_campaign(&mut log, wins, losses, ties);
-        let report = Report::from_trials(&log.trials().unwrap(), Some("test-campaign"));
+        let report = Report::from_trials(&log.trials().unwrap(), Scope::campaign("test-campaign"));
         assert_eq!(report.sign_tests.len(), 1);
         let t = &report.sign_tests[0];
         assert_eq!((t.a.as_str(), t.b.as_str()), ("a", "b"));
@@ -130,7 +130,7 @@ fn report_counts_the_failure_table_from_the_log() {
     let dir = TempDir::new("trial-report").unwrap();
     let mut log = TrialLog::open(dir.join("t.sqlite")).unwrap();
     paired_campaign(&mut log, 20, 2, 6);
-    let r = Report::from_trials(&log.trials().unwrap(), None);
+    let r = Report::from_trials(&log.trials().unwrap(), Scope::default());
     // b fails in 20 of 28 pairs (wins of a); a fails in 2 (losses).
     let b = &r.methods[1];
     assert_eq!((b.graded, b.failure), (28, 20));
@@ -447,6 +447,19 @@ fn cell_grade_report_import_export_on_the_command_line() {
         "grade", "--trial", "11", "--grade", "f", "--cause", "gremlins", "--log", log_arg,
     ]);
     assert!(e.contains("invalid failure cause \"gremlins\""), "{e}");
+    let e = fail(&["report", "--log", log_arg, "--task", "hanlde"]);
+    assert!(
+        e.contains("no trial of task \"hanlde\"; the log's tasks: pour"),
+        "{e}"
+    );
+    let pour: serde_json::Value = serde_json::from_str(&ok(&[
+        "report", "--log", log_arg, "--task", "pour", "--json",
+    ]))
+    .unwrap();
+    assert_eq!(
+        (pour["task"].as_str(), pour["trials"].as_u64()),
+        (Some("pour"), Some(11))
+    );
     let e = fail(&["report", "--log", dir.join("none.sqlite").to_str().unwrap()]);
     assert!(e.contains("no trial log here"), "{e}");
     assert!(!dir.join("none.sqlite").exists());

@@ -295,7 +295,7 @@ impl CampaignSpec {
                 let id = self.campaign_id(task);
                 TaskReport {
                     task: task.clone(),
-                    report: Report::from_trials(trials, Some(&id)),
+                    report: Report::from_trials(trials, crate::trial::Scope::campaign(&id)),
                     verdicts: agreement(trials, &id),
                     campaign_id: id,
                 }

@@ -4,7 +4,7 @@
 use crate::trial::csv::ImportSummary;
 use crate::trial::log::DEFAULT_LOG_PATH;
 use crate::trial::{
-    plot, prompt_grade, GradeSource, Grading, Report, TrialId, TrialLog, UtcTimestamp,
+    plot, prompt_grade, GradeSource, Grading, Report, Scope, TrialId, TrialLog, UtcTimestamp,
 };
 use anyhow::Context;
 use clap::{Args, Subcommand};
@@ -46,6 +46,9 @@ pub struct ReportArgs {
     /// Report on this campaign only (default: every trial in the log).
     #[arg(long)]
     pub campaign: Option<String>,
+    /// Report on this task only (`top`, `side`, `handle`, …; default: every task).
+    #[arg(long)]
+    pub task: Option<String>,
     /// Also write the bar charts (outcomes.png, failure_causes.png) into this directory.
     #[arg(long)]
     pub png: Option<PathBuf>,
@@ -171,7 +174,22 @@ struct ReportOutput<'a> {
 pub fn report(args: ReportArgs) -> anyhow::Result<ExitCode> {
     let log = TrialLog::open_existing(&args.log)?;
     let trials = log.trials()?;
-    let report = Report::from_trials(&trials, args.campaign.as_deref());
+    if let Some(task) = args.task.as_deref() {
+        let tasks: std::collections::BTreeSet<&str> =
+            trials.iter().map(|t| t.trial.task.as_str()).collect();
+        if !tasks.contains(task) {
+            anyhow::bail!(
+                "{}: no trial of task {task:?}; the log's tasks: {}",
+                args.log.display(),
+                tasks.into_iter().collect::<Vec<_>>().join(", ")
+            );
+        }
+    }
+    let scope = Scope {
+        campaign_id: args.campaign.as_deref(),
+        task: args.task.as_deref(),
+    };
+    let report = Report::from_trials(&trials, scope);
     let charts = match &args.png {
         Some(dir) => plot::write_charts(&report, dir)?,
         None => Vec::new(),

@@ -318,7 +318,13 @@ impl Handler {
     fn report(&self) -> Result<(Report, Vec<TrialRecord>, TrialLog), TrialError> {
         let log = TrialLog::open_existing(&self.options.log_path)?;
         let trials = log.trials()?;
-        let report = Report::from_trials(&trials, self.options.campaign.as_deref());
+        let report = Report::from_trials(
+            &trials,
+            crate::trial::Scope {
+                campaign_id: self.options.campaign.as_deref(),
+                task: None,
+            },
+        );
         Ok((report, trials, log))
     }
 

@@ -32,7 +32,7 @@ pub mod time;
 
 pub use grade::{prompt_grade, FailureCause, Grade, GradeEvent, GradeSource, Grading};
 pub use log::{NewTrial, ObjectRef, Placement, TrialId, TrialLog, TrialRecord};
-pub use report::Report;
+pub use report::{Report, Scope};
 pub use stats::{sign_test, sign_test_p_value, SignTest};
 pub use time::UtcTimestamp;
 

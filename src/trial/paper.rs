@@ -77,7 +77,7 @@ mod tests {
             let sum: f64 = PAPER_TABLE_2[..4].iter().map(|(_, v)| v[m]).sum();
             assert!((sum - PAPER_TABLE_2[4].1[m]).abs() < 1e-9, "column {m}");
         }
-        let report = Report::from_trials(&[], None);
+        let report = Report::from_trials(&[], Default::default());
         let text = comparison_text(&report);
         assert!(text.contains("- / 78.0"), "{text}");
         assert!(text.contains("shape-dissimilarity"));

@@ -74,11 +74,39 @@ pub struct MethodComparison {
     pub test: PairedSignTest,
 }
 
+/// Which trials a report covers: one campaign's or all, one task's or all.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Scope<'a> {
+    /// Only this campaign's trials.
+    pub campaign_id: Option<&'a str>,
+    /// Only trials of this task (`top`, `side`, `handle`, …).
+    pub task: Option<&'a str>,
+}
+
+impl<'a> Scope<'a> {
+    /// Every trial of one campaign.
+    pub fn campaign(id: &'a str) -> Scope<'a> {
+        Scope {
+            campaign_id: Some(id),
+            task: None,
+        }
+    }
+
+    /// Whether `t` is in scope.
+    fn contains(&self, t: &TrialRecord) -> bool {
+        self.campaign_id
+            .is_none_or(|c| t.trial.campaign_id.as_deref() == Some(c))
+            && self.task.is_none_or(|task| t.trial.task == task)
+    }
+}
+
 /// The whole report.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Report {
     /// The campaign reported on (`None`: every trial in the log).
     pub campaign_id: Option<String>,
+    /// The task reported on (`None`: every task).
+    pub task: Option<String>,
     /// Trials considered.
     pub trials: u64,
     /// Of those, graded.
@@ -101,12 +129,9 @@ fn pct(count: u64, of: u64) -> Option<f64> {
 }
 
 impl Report {
-    /// Builds the report from trials (all of them, or one campaign's).
-    pub fn from_trials(trials: &[TrialRecord], campaign_id: Option<&str>) -> Report {
-        let selected: Vec<&TrialRecord> = trials
-            .iter()
-            .filter(|t| campaign_id.is_none() || t.trial.campaign_id.as_deref() == campaign_id)
-            .collect();
+    /// Builds the report from the trials in `scope`.
+    pub fn from_trials(trials: &[TrialRecord], scope: Scope) -> Report {
+        let selected: Vec<&TrialRecord> = trials.iter().filter(|t| scope.contains(t)).collect();
         let mut by_method: BTreeMap<&str, Vec<&TrialRecord>> = BTreeMap::new();
         for t in &selected {
             by_method
@@ -204,7 +229,8 @@ impl Report {
 
         let graded = summaries.iter().map(|s| s.graded).sum();
         Report {
-            campaign_id: campaign_id.map(str::to_string),
+            campaign_id: scope.campaign_id.map(str::to_string),
+            task: scope.task.map(str::to_string),
             trials: selected.len() as u64,
             graded,
             ungraded: selected.len() as u64 - graded,
@@ -222,10 +248,13 @@ impl Report {
     /// The report as human-readable tables.
     pub fn to_text(&self) -> String {
         let mut out = String::new();
-        let scope = match &self.campaign_id {
+        let mut scope = match &self.campaign_id {
             Some(c) => format!("campaign {c}"),
             None => "all campaigns".to_string(),
         };
+        if let Some(task) = &self.task {
+            scope.push_str(&format!(", task {task}"));
+        }
         let _ = writeln!(
             out,
             "Trial log ({scope}): {} trials, {} graded, {} ungraded",
@@ -393,7 +422,7 @@ mod tests {
                 Some(("failure", Some("shape-dissimilarity"))),
             ),
         ];
-        let r = Report::from_trials(&trials, None);
+        let r = Report::from_trials(&trials, Scope::default());
         assert_eq!((r.trials, r.graded, r.ungraded, r.superseded), (8, 7, 1, 1));
         let a = &r.methods[0];
         assert_eq!(
@@ -419,6 +448,39 @@ mod tests {
         assert!(text.contains("Table 2"));
         assert!(text.contains("a vs b"));
         // Campaign filter.
-        assert_eq!(Report::from_trials(&trials, Some("other")).trials, 0);
+        assert_eq!(
+            Report::from_trials(&trials, Scope::campaign("other")).trials,
+            0
+        );
+    }
+
+    #[test]
+    fn a_task_scope_reports_that_task_alone_and_says_so() {
+        let mut trials = vec![
+            record(1, "a", "m1", 0, Some(("success", None))),
+            record(2, "a", "m1", 1, Some(("failure", Some("reachability")))),
+            record(3, "b", "m1", 0, Some(("failure", Some("registration")))),
+        ];
+        trials[1].trial.task = "handle".into();
+        let handle = Report::from_trials(
+            &trials,
+            Scope {
+                campaign_id: Some("c1"),
+                task: Some("handle"),
+            },
+        );
+        assert_eq!((handle.trials, handle.methods.len()), (1, 1));
+        assert_eq!(handle.methods[0].failure, 1);
+        assert_eq!(handle.task.as_deref(), Some("handle"));
+        assert!(handle.to_text().contains("(campaign c1, task handle)"));
+        let pour = Report::from_trials(
+            &trials,
+            Scope {
+                task: Some("pour"),
+                ..Scope::default()
+            },
+        );
+        assert_eq!(pour.trials, 2);
+        assert!(pour.to_text().contains("(all campaigns, task pour)"));
     }
 }
