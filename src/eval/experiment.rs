@@ -13,10 +13,13 @@ use super::view::{complete_view, partial_view, PlacementRegion, ViewKind};
 use super::EvalError;
 use crate::category::CategoryDb;
 use crate::cloud::PointCloud;
-use crate::geometry::{pose_error, PoseJson};
+use crate::geometry::{pose_error, Pose, PoseJson};
 use crate::mesh::procedural::instance_seed;
+use crate::mesh::TriMesh;
 use crate::plan::category::example_grasps;
-use crate::plan::{plan, Kernel, ModelFit, PlanError, PlanOptions, PlannedGrasp, Reachability};
+use crate::plan::{
+    plan, Kernel, ModelFit, PlanError, PlanOptions, PlanOutcome, PlannedGrasp, Reachability,
+};
 use crate::quality::autograsp::GraspObject;
 use crate::robot::hand::HandModel;
 use crate::sim::camera::DepthCamera;
@@ -368,11 +371,6 @@ pub fn run_target(
     kernels: &[Kernel],
     progress: Option<&indicatif::ProgressBar>,
 ) -> Result<TargetReport, EvalError> {
-    let Training {
-        db: train,
-        exclude,
-        registrar,
-    } = *training;
     let mut steps = Steps {
         bar: progress,
         left: steps_per_target(tasks.len(), kernels.len()),
@@ -392,93 +390,60 @@ pub fn run_target(
         runs: Vec::new(),
         skipped: Vec::new(),
     };
-    let skip_all = |report: &mut TargetReport, reason: String| {
-        report.skipped.push(Skipped {
-            target: name.clone(),
-            task: None,
-            reason,
-        });
-    };
-    let view = match setup.view {
-        ViewKind::Complete => complete_view(
-            &name,
-            mesh,
-            &base_from_object,
-            setup.complete_points,
-            view_seed,
-        ),
-        ViewKind::Partial => partial_view(
-            &name,
-            mesh,
-            &base_from_object,
-            &setup.camera,
-            setup.table,
-            view_seed,
-        ),
-    };
-    let cloud = match view {
+    let cloud = match view_of(setup, &name, mesh, &base_from_object, view_seed) {
         Ok(c) => c,
         Err(e) => {
-            skip_all(&mut report, e.to_string());
+            report.skip_all(e.to_string());
             return Ok(report);
         }
     };
     report.view_points = cloud.len();
-    // The training models (but the held-out one) without a fit.
-    let unregistered = |fits: &[ModelFit]| -> Vec<String> {
-        train
-            .file
-            .models
-            .iter()
-            .map(|m| &m.name)
-            .filter(|n| Some(n.as_str()) != exclude && !fits.iter().any(|f| &f.name == *n))
-            .cloned()
-            .collect()
-    };
-    let registered = registrar.fits(&cloud, exclude, register_seed);
+    let registered = training
+        .registrar
+        .fits(&cloud, training.exclude, register_seed);
     steps.tick();
     let fits = match registered {
         Ok(f) if f.is_empty() => {
-            skip_all(&mut report, "registration: no model registered".into());
+            report.skip_all("registration: no model registered".into());
             return Ok(report);
         }
         Ok(f) => f,
         Err(e) => {
-            report.unregistered = unregistered(&[]);
-            skip_all(&mut report, format!("registration: {e}"));
+            report.unregistered = training.unregistered(&[]);
+            report.skip_all(format!("registration: {e}"));
             return Ok(report);
         }
     };
-    let target_handle = super::handle::handle_visible(mesh, &base_from_object, &cloud);
-    let model_handle = |model: &str| {
-        train
-            .file
-            .models
-            .iter()
-            .position(|m| m.name == model)
-            .is_some_and(|i| super::handle::HandleRegion::of(&train.meshes[i]).is_some())
-    };
-    report.fits = fits
-        .iter()
-        .map(|f| {
-            let (dp, _) = pose_error(&f.base_from_model, &base_from_object);
-            let (tilt_deg, yaw_deg) = tilt_and_yaw_deg(&base_from_object, &f.base_from_model);
-            FitSummary {
-                model: f.name.clone(),
-                base_from_model: PoseJson::from(&f.base_from_model),
-                eps_m2: f.eps_m2,
-                sigma_m2: f.sigma_m2,
-                offset_mm: dp * 1e3,
-                tilt_deg,
-                yaw_deg,
-                handle_visible: target_handle && model_handle(&f.name),
-            }
-        })
-        .collect();
-    report.unregistered = unregistered(&fits);
+    report.fits = fit_summaries(training.db, mesh, &base_from_object, &cloud, &fits);
+    report.unregistered = training.unregistered(&fits);
 
-    let path = target.db.dir.join(&entry.mesh);
-    let object = GraspObject::new(mesh, &path)
+    let runs = TaskRuns {
+        setup,
+        train: training.db,
+        fits: &fits,
+        kernels,
+        test: test_object(setup, target, name, base_from_object)?,
+        sim: sim_setup(setup, training.db),
+    };
+    for task in tasks {
+        runs.run(task, &mut report, &mut steps)?;
+    }
+    Ok(report)
+}
+
+/// The test object `name` of `target` at `base_from_object`, for the grasp simulator
+/// (on the table when its category stands on one).
+fn test_object(
+    setup: &Setup,
+    target: Target,
+    name: String,
+    base_from_object: Pose,
+) -> Result<TestObject, EvalError> {
+    let path = target
+        .db
+        .dir
+        .join(&target.db.file.models[target.index].mesh);
+    let object = GraspObject::new(&target.db.meshes[target.index], &path)
         .map_err(|source| EvalError::Simulation {
             target: name.clone(),
             source,
@@ -490,12 +455,113 @@ pub fn run_target(
                 .table_height_m
                 .map(|_| setup.region.table_height_m - base_from_object.translation.vector.z),
         );
-    let test = TestObject {
-        name: name.clone(),
+    Ok(TestObject {
+        name,
         object,
         base_from_object,
+    })
+}
+
+/// The view of the test object `name` at `base_from_object` that the setup asks for.
+fn view_of(
+    setup: &Setup,
+    name: &str,
+    mesh: &TriMesh,
+    base_from_object: &Pose,
+    view_seed: u64,
+) -> Result<PointCloud, EvalError> {
+    match setup.view {
+        ViewKind::Complete => complete_view(
+            name,
+            mesh,
+            base_from_object,
+            setup.complete_points,
+            view_seed,
+        ),
+        ViewKind::Partial => partial_view(
+            name,
+            mesh,
+            base_from_object,
+            &setup.camera,
+            setup.table,
+            view_seed,
+        ),
+    }
+}
+
+impl TargetReport {
+    /// Records that none of the target's tasks could run, and why.
+    fn skip_all(&mut self, reason: String) {
+        self.skipped.push(Skipped {
+            target: self.target.clone(),
+            task: None,
+            reason,
+        });
+    }
+
+    /// Records that `task` could not run, and why.
+    fn skip_task(&mut self, task: &str, reason: String) {
+        self.skipped.push(Skipped {
+            target: self.target.clone(),
+            task: Some(task.to_string()),
+            reason,
+        });
+    }
+}
+
+impl Training<'_> {
+    /// The training models (but the held-out one) without a fit.
+    fn unregistered(&self, fits: &[ModelFit]) -> Vec<String> {
+        self.db
+            .file
+            .models
+            .iter()
+            .map(|m| &m.name)
+            .filter(|n| Some(n.as_str()) != self.exclude && !fits.iter().any(|f| &f.name == *n))
+            .cloned()
+            .collect()
+    }
+}
+
+/// Each fit of a training model of `train` to the view `cloud` of the test object
+/// `mesh` at `base_from_object`, as reported.
+fn fit_summaries(
+    train: &CategoryDb,
+    mesh: &TriMesh,
+    base_from_object: &Pose,
+    cloud: &PointCloud,
+    fits: &[ModelFit],
+) -> Vec<FitSummary> {
+    let target_handle = super::handle::handle_visible(mesh, base_from_object, cloud);
+    let model_handle = |model: &str| {
+        train
+            .file
+            .models
+            .iter()
+            .position(|m| m.name == model)
+            .is_some_and(|i| super::handle::HandleRegion::of(&train.meshes[i]).is_some())
     };
-    let sim = if setup.paper {
+    fits.iter()
+        .map(|f| {
+            let (dp, _) = pose_error(&f.base_from_model, base_from_object);
+            let (tilt_deg, yaw_deg) = tilt_and_yaw_deg(base_from_object, &f.base_from_model);
+            FitSummary {
+                model: f.name.clone(),
+                base_from_model: PoseJson::from(&f.base_from_model),
+                eps_m2: f.eps_m2,
+                sigma_m2: f.sigma_m2,
+                offset_mm: dp * 1e3,
+                tilt_deg,
+                yaw_deg,
+                handle_visible: target_handle && model_handle(&f.name),
+            }
+        })
+        .collect()
+}
+
+/// The grasp simulator's setting for grasps planned from `train`.
+fn sim_setup(setup: &Setup, train: &CategoryDb) -> SimSetup {
+    if setup.paper {
         SimSetup::paper(train.file.simulation.into(), train.file.metric.params())
     } else {
         SimSetup::cell(
@@ -503,96 +569,125 @@ pub fn run_target(
             train.file.metric.params(),
             train.file.stability.retreat_m,
         )
-    };
-    let run_sim = |g: &PlannedGrasp| {
-        simulate(setup.hand, &test, &g.pose, g.spread_rad, &sim).map_err(|source| {
-            EvalError::Simulation {
-                target: name.clone(),
-                source,
-            }
-        })
-    };
-    for task in tasks {
-        let grasps = match example_grasps(train, &fits, task) {
+    }
+}
+
+/// The tasks of one registered target: plan with each kernel, take best single,
+/// simulate both on the test object.
+struct TaskRuns<'a> {
+    setup: &'a Setup<'a>,
+    train: &'a CategoryDb,
+    fits: &'a [ModelFit],
+    kernels: &'a [Kernel],
+    test: TestObject,
+    sim: SimSetup,
+}
+
+impl TaskRuns<'_> {
+    /// Runs `task` with every kernel into `report`; a task the planner cannot do
+    /// with these fits is skipped.
+    fn run(
+        &self,
+        task: &str,
+        report: &mut TargetReport,
+        steps: &mut Steps,
+    ) -> Result<(), EvalError> {
+        let grasps = match example_grasps(self.train, self.fits, task) {
             Ok(g) => g,
             Err(e) if is_skippable(&e) => {
-                report.skipped.push(Skipped {
-                    target: name.clone(),
-                    task: Some(task.clone()),
-                    reason: e.to_string(),
-                });
-                continue;
+                report.skip_task(task, e.to_string());
+                return Ok(());
             }
-            Err(source) => {
-                return Err(EvalError::Plan {
-                    target: name.clone(),
-                    task: task.clone(),
-                    kernel: "-",
-                    source,
-                })
-            }
+            Err(source) => return Err(self.plan_error(task, "-", source)),
         };
         let mut single: Option<SimulatedGrasp> = None;
-        for kernel in kernels {
+        for kernel in self.kernels {
             let options = PlanOptions {
                 kernel: *kernel,
                 parallel: false,
-                ..setup.plan
+                ..self.setup.plan
             };
-            let outcome = match plan(&fits, &grasps, task, &options, setup.reach) {
+            let outcome = match plan(self.fits, &grasps, task, &options, self.setup.reach) {
                 Ok(o) => o,
                 Err(e) if is_skippable(&e) => {
-                    report.skipped.push(Skipped {
-                        target: name.clone(),
-                        task: Some(task.clone()),
-                        reason: e.to_string(),
-                    });
+                    report.skip_task(task, e.to_string());
                     break;
                 }
-                Err(source) => {
-                    return Err(EvalError::Plan {
-                        target: name.clone(),
-                        task: task.clone(),
-                        kernel: kernel.name(),
-                        source,
-                    })
-                }
+                Err(source) => return Err(self.plan_error(task, kernel.name(), source)),
             };
-            let ours = run_sim(&outcome.plan.grasp)?;
+            let ours = self.simulate(&outcome.plan.grasp)?;
             steps.tick();
             // Best single does not depend on the kernel: simulate it once per task.
             let single = match single {
                 Some(s) => s,
-                None => *single.insert(run_sim(&outcome.best_single.grasp)?),
+                None => *single.insert(self.simulate(&outcome.best_single.grasp)?),
             };
-            let checked = outcome.plan.reachability_checked;
-            report.runs.push(RunRecord {
-                target: name.clone(),
-                task: task.clone(),
-                kernel: kernel.name(),
-                epsilon: ours.epsilon,
-                epsilon_single: single.epsilon,
-                verdict: verdict(ours.epsilon, single.epsilon, setup.equal_tolerance),
-                ours,
-                single,
-                pose: PoseJson::from(&outcome.plan.grasp.pose),
-                spread_rad: outcome.plan.grasp.spread_rad,
-                single_pose: PoseJson::from(&outcome.best_single.grasp.pose),
-                single_spread_rad: outcome.best_single.grasp.spread_rad,
-                best_single_model: outcome.best_single.model_name.clone(),
-                objective: outcome.plan.grasp.objective,
-                reachable: checked.then_some(outcome.plan.grasp.reachable),
-                single_reachable: checked.then_some(outcome.best_single.grasp.reachable),
-            });
+            report
+                .runs
+                .push(self.record(task, kernel, &outcome, ours, single));
+        }
+        Ok(())
+    }
+
+    /// `grasp` in the grasp simulator on the test object.
+    fn simulate(&self, grasp: &PlannedGrasp) -> Result<SimulatedGrasp, EvalError> {
+        simulate(
+            self.setup.hand,
+            &self.test,
+            &grasp.pose,
+            grasp.spread_rad,
+            &self.sim,
+        )
+        .map_err(|source| EvalError::Simulation {
+            target: self.test.name.clone(),
+            source,
+        })
+    }
+
+    fn plan_error(&self, task: &str, kernel: &'static str, source: PlanError) -> EvalError {
+        EvalError::Plan {
+            target: self.test.name.clone(),
+            task: task.to_string(),
+            kernel,
+            source,
         }
     }
-    Ok(report)
+
+    /// The record of our grasp against best single.
+    fn record(
+        &self,
+        task: &str,
+        kernel: &Kernel,
+        outcome: &PlanOutcome,
+        ours: SimulatedGrasp,
+        single: SimulatedGrasp,
+    ) -> RunRecord {
+        let checked = outcome.plan.reachability_checked;
+        RunRecord {
+            target: self.test.name.clone(),
+            task: task.to_string(),
+            kernel: kernel.name(),
+            epsilon: ours.epsilon,
+            epsilon_single: single.epsilon,
+            verdict: verdict(ours.epsilon, single.epsilon, self.setup.equal_tolerance),
+            ours,
+            single,
+            pose: PoseJson::from(&outcome.plan.grasp.pose),
+            spread_rad: outcome.plan.grasp.spread_rad,
+            single_pose: PoseJson::from(&outcome.best_single.grasp.pose),
+            single_spread_rad: outcome.best_single.grasp.spread_rad,
+            best_single_model: outcome.best_single.model_name.clone(),
+            objective: outcome.plan.grasp.objective,
+            reachable: checked.then_some(outcome.plan.grasp.reachable),
+            single_reachable: checked.then_some(outcome.best_single.grasp.reachable),
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{pose_from_params, Pose};
+    use crate::geometry::pose_from_params;
     use std::f64::consts::FRAC_PI_2;
 
     #[test]

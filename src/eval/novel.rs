@@ -21,7 +21,7 @@
 use super::objects::UserObject;
 use crate::category::CategoryDb;
 use crate::cell::perceive::{perceive_trial, register_params};
-use crate::cell::plan::{executable_joints, plan_trial, Databases};
+use crate::cell::plan::{executable_joints, plan_trial, Databases, PlanFailure};
 use crate::cell::setup::novel_object_in;
 use crate::cloud::segment::SegmentParams;
 use crate::config::CellConfig;
@@ -31,6 +31,7 @@ use crate::ipc::{FitStatus, Fits, Protocol, TrialRequest};
 use crate::mesh::procedural::held_apart::Family;
 use crate::mesh::procedural::{instance_seed, Category};
 use crate::mesh::TriMesh;
+use crate::plan::PlannedGrasp;
 use crate::quality::approach::{approach_to_contact, ApproachOptions};
 use crate::quality::autograsp::{open_hand_collision, GraspObject};
 use crate::register::{ModelSet, RegisterParams};
@@ -530,49 +531,8 @@ pub fn run_novel(
     options: &NovelOptions,
     progress: Option<&indicatif::ProgressBar>,
 ) -> Result<NovelReport, NovelError> {
-    let bad = |what: &str, problem: &str| NovelError::Option {
-        what: what.to_string(),
-        problem: problem.to_string(),
-    };
-    if options.placements == 0 {
-        return Err(bad("placements", "must be at least 1"));
-    }
-    if options.methods.is_empty() {
-        return Err(bad("methods", "give at least one method"));
-    }
-    for m in &options.methods {
-        if crate::cell::plan::method_kernel(m).is_none() {
-            return Err(bad(
-                &format!("method {m:?}"),
-                &format!("unknown (use {})", crate::cell::plan::METHODS.join(", ")),
-            ));
-        }
-    }
-    options
-        .lab
-        .validate()
-        .map_err(|e| bad("lab errors", &e.to_string()))?;
-    let mut tasks: Vec<String> = Vec::new();
-    for object in objects {
-        let m = models
-            .get(&object.category)
-            .ok_or_else(|| NovelError::Category {
-                category: object.category.to_string(),
-                problem: "no database loaded".into(),
-            })?;
-        for t in &m.tasks {
-            let label = task_label(object.category, t);
-            if !tasks.contains(&label) {
-                tasks.push(label);
-            }
-        }
-    }
-    if tasks.is_empty() {
-        return Err(bad(
-            "tasks",
-            "no task of the objects' categories was asked for",
-        ));
-    }
+    check_options(options)?;
+    let tasks = task_labels(models, objects)?;
     if let Some(p) = progress {
         let steps: u64 = objects
             .iter()
@@ -580,155 +540,18 @@ pub fn run_novel(
             .sum();
         p.set_length(steps * options.placements as u64);
     }
-    let hand_eye_error = options.lab.draw_hand_eye(options.seed);
-    let region = placement_region(cell.config);
-    let segment = SegmentParams::for_cell(cell.config);
-    let calibrated = cell.config.base_from_camera();
-    let safety = SafetyCheck::new(
-        Arc::clone(&cell.robot),
-        SafetyLimits::from_cell(cell.config, &cell.robot),
-    );
-    let motions = ExecutorConfig::from_cell(cell.config);
-    let approach = (!options.paper).then(|| ApproachOptions::from_cell(cell.config));
-    let protocol = if options.paper {
-        Protocol::PaperRobot
-    } else {
-        Protocol::Cell
-    };
-    let register = register_params(protocol);
+    let run = NovelRun::new(cell, options);
     let mut trials = Vec::new();
     for (o, object) in objects.iter().enumerate() {
         let category = &models[&object.category];
         for placement in 0..options.placements {
             let unit = (placement * objects.len() + o) as u64;
-            let [place_seed, noise_seed, register_seed, joint_seed] =
-                unit_seeds(options.seed, unit);
-            let lab = LabDraw {
-                calibrated_from_true_camera: hand_eye_error,
-                joint_error_rad: options.lab.draw_joints(joint_seed),
-            };
-            let base_from_object = region.place(&object.mesh, place_seed);
-            let object_fail = |problem: String| NovelError::Object {
-                object: object.name.clone(),
-                problem,
-            };
-            // 1. The camera, from its true mount.
-            let mut scene = Scene::new(Some(TableBox::from(&cell.config.table)));
-            scene
-                .add(&object.name, object.mesh.clone(), base_from_object)
-                .map_err(|e| object_fail(e.to_string()))?;
-            let camera = DepthCamera::from_config(
-                &cell.config.camera,
-                lab.true_base_from_camera(&calibrated),
-            );
-            let cloud = camera.render(&scene, noise_seed).to_cloud();
-            // 2. Perception, with the calibrated mount.
-            let fits = perceive_trial(
-                unit,
-                &cloud,
-                &calibrated,
-                &segment,
-                &category.models,
-                &register,
-                register_seed,
-            )
-            .map_err(|e| object_fail(format!("perception: {e}")))?;
-            let best_fit = best_fit(&fits);
-            let best_fit_offset_mm = best_fit
-                .as_ref()
-                .map(|f| pose_error(f, &base_from_object).0 * 1e3);
-            let grasp_object = GraspObject::new(&object.mesh, Path::new(&object.name))
-                .map_err(|e| object_fail(e.to_string()))?
-                .with_table(Some(
-                    cell.config.table.height_m - base_from_object.translation.vector.z,
-                ));
+            let placed = run.place(object, category, placement, unit)?;
             for task in &category.tasks {
-                let in_reach = task_in_reach(&cell.robot, &category.db, task, &base_from_object);
+                let in_reach =
+                    task_in_reach(&cell.robot, &category.db, task, &placed.base_from_object);
                 for method in &options.methods {
-                    let started = std::time::Instant::now();
-                    let request = TrialRequest::new(unit, 0, object.category.name(), task, method)
-                        .map_err(|e| object_fail(e.to_string()))?
-                        .with_protocol(protocol);
-                    // 3. Planning as the plan stage does it.
-                    let planned =
-                        plan_trial(cell.config, &cell.robot, cell.hand, dbs, &request, &fits)
-                            .and_then(|mut g| {
-                                executable_joints(
-                                    &cell.robot,
-                                    &safety,
-                                    &motions,
-                                    &mut g,
-                                    &crate::cell::harness::HOME_JOINTS_RAD,
-                                )
-                                .map(|()| g)
-                            });
-                    let plan_ms = started.elapsed().as_secs_f64() * 1e3;
-                    let (attempt, palm) = match planned {
-                        Err(failure) => (
-                            Attempt::NotPlanned {
-                                cause: failure.cause.into(),
-                                detail: failure.detail,
-                            },
-                            None,
-                        ),
-                        Ok(grasp) => {
-                            // 4. Execution: the joints plus the lab's errors, then
-                            // the approach (if any).
-                            let reached = match grasp.joints {
-                                Some(q) => cell.robot.arm().palm(&lab.executed_joints(&q)),
-                                None => grasp.pose,
-                            };
-                            let palm = executed_palm(
-                                cell.hand,
-                                &grasp_object,
-                                &base_from_object,
-                                &reached,
-                                grasp.spread_rad,
-                                approach.as_ref(),
-                            );
-                            (
-                                Attempt::Executed {
-                                    base_from_palm: palm,
-                                    spread_rad: grasp.spread_rad,
-                                    best_fit,
-                                },
-                                Some((palm, grasp.spread_rad)),
-                            )
-                        }
-                    };
-                    // 5. The observer.
-                    let seen: Observation = cell
-                        .observer
-                        .grade(&object.name, &object.mesh, &base_from_object, &attempt)
-                        .map_err(|e| object_fail(e.to_string()))?;
-                    let collision = palm.is_some_and(|(p, spread)| {
-                        let object_from_palm = base_from_object.inverse() * p;
-                        open_hand_collision(cell.hand, &grasp_object, &object_from_palm, spread)
-                            .is_some()
-                    });
-                    trials.push(NovelTrial {
-                        object: object.name.clone(),
-                        category: object.category,
-                        origin: object.origin,
-                        placement,
-                        base_from_object: PoseJson::from(&base_from_object),
-                        task: task.clone(),
-                        method: method.clone(),
-                        grade: seen.grade,
-                        cause: seen.cause,
-                        physics_grade: seen.physics.grade,
-                        static_grade: seen.static_epsilon.grade,
-                        epsilon: seen.epsilon,
-                        force_closure: seen.epsilon > 0.0,
-                        collision,
-                        executed: palm.is_some(),
-                        task_in_reach: in_reach,
-                        note: seen.note,
-                        palm: palm.map(|(p, _)| PoseJson::from(&p)),
-                        spread_rad: palm.map(|(_, spread)| spread),
-                        best_fit_offset_mm,
-                        plan_ms,
-                    });
+                    trials.push(run.trial(dbs, &placed, task, method, in_reach)?);
                     if let Some(p) = progress {
                         p.inc(1);
                     }
@@ -751,11 +574,312 @@ pub fn run_novel(
             })
             .collect(),
         lab: options.lab,
-        hand_eye_error,
+        hand_eye_error: run.hand_eye_error,
         paper: options.paper,
         approach_to_contact: !options.paper,
         trials,
     })
+}
+
+/// Checks the placements, the methods (the plan stage's names) and the lab's errors.
+fn check_options(options: &NovelOptions) -> Result<(), NovelError> {
+    let bad = |what: &str, problem: &str| NovelError::Option {
+        what: what.to_string(),
+        problem: problem.to_string(),
+    };
+    if options.placements == 0 {
+        return Err(bad("placements", "must be at least 1"));
+    }
+    if options.methods.is_empty() {
+        return Err(bad("methods", "give at least one method"));
+    }
+    for m in &options.methods {
+        if crate::cell::plan::method_kernel(m).is_none() {
+            return Err(bad(
+                &format!("method {m:?}"),
+                &format!("unknown (use {})", crate::cell::plan::METHODS.join(", ")),
+            ));
+        }
+    }
+    options
+        .lab
+        .validate()
+        .map_err(|e| bad("lab errors", &e.to_string()))
+}
+
+/// The tasks run on `objects` ([`task_label`]s, in order of first appearance); an
+/// error when an object's category has no models or no task is left.
+fn task_labels(
+    models: &HashMap<Category, CategoryModels>,
+    objects: &[NovelObject],
+) -> Result<Vec<String>, NovelError> {
+    let mut tasks: Vec<String> = Vec::new();
+    for object in objects {
+        let m = models
+            .get(&object.category)
+            .ok_or_else(|| NovelError::Category {
+                category: object.category.to_string(),
+                problem: "no database loaded".into(),
+            })?;
+        for t in &m.tasks {
+            let label = task_label(object.category, t);
+            if !tasks.contains(&label) {
+                tasks.push(label);
+            }
+        }
+    }
+    if tasks.is_empty() {
+        return Err(NovelError::Option {
+            what: "tasks".to_string(),
+            problem: "no task of the objects' categories was asked for".to_string(),
+        });
+    }
+    Ok(tasks)
+}
+
+impl NovelObject {
+    /// The cell failed on this object.
+    fn fail(&self, problem: String) -> NovelError {
+        NovelError::Object {
+            object: self.name.clone(),
+            problem,
+        }
+    }
+}
+
+/// What stays the same over a run: the lab's hand–eye error and the cell's
+/// perception, planning and execution settings for the run's protocol.
+struct NovelRun<'a> {
+    cell: &'a NovelCell<'a>,
+    options: &'a NovelOptions,
+    hand_eye_error: [f64; 6],
+    region: PlacementRegion,
+    segment: SegmentParams,
+    calibrated: Pose,
+    safety: SafetyCheck,
+    motions: ExecutorConfig,
+    approach: Option<ApproachOptions>,
+    protocol: Protocol,
+    register: RegisterParams,
+}
+
+/// One object at one placement, seen and registered.
+struct Placed<'a> {
+    object: &'a NovelObject,
+    placement: usize,
+    unit: u64,
+    base_from_object: Pose,
+    lab: LabDraw,
+    fits: Fits,
+    best_fit: Option<Pose>,
+    best_fit_offset_mm: Option<f64>,
+    grasp_object: GraspObject,
+}
+
+impl<'a> NovelRun<'a> {
+    fn new(cell: &'a NovelCell<'a>, options: &'a NovelOptions) -> NovelRun<'a> {
+        let protocol = if options.paper {
+            Protocol::PaperRobot
+        } else {
+            Protocol::Cell
+        };
+        NovelRun {
+            cell,
+            options,
+            hand_eye_error: options.lab.draw_hand_eye(options.seed),
+            region: placement_region(cell.config),
+            segment: SegmentParams::for_cell(cell.config),
+            calibrated: cell.config.base_from_camera(),
+            safety: SafetyCheck::new(
+                Arc::clone(&cell.robot),
+                SafetyLimits::from_cell(cell.config, &cell.robot),
+            ),
+            motions: ExecutorConfig::from_cell(cell.config),
+            approach: (!options.paper).then(|| ApproachOptions::from_cell(cell.config)),
+            protocol,
+            register: register_params(protocol),
+        }
+    }
+
+    /// Steps 1 and 2: `object` placed (placement `placement`, seeds of `unit`),
+    /// rendered from the camera's true mount and registered with the calibrated one.
+    fn place<'o>(
+        &self,
+        object: &'o NovelObject,
+        category: &CategoryModels,
+        placement: usize,
+        unit: u64,
+    ) -> Result<Placed<'o>, NovelError> {
+        let config = self.cell.config;
+        let [place_seed, noise_seed, register_seed, joint_seed] =
+            unit_seeds(self.options.seed, unit);
+        let lab = LabDraw {
+            calibrated_from_true_camera: self.hand_eye_error,
+            joint_error_rad: self.options.lab.draw_joints(joint_seed),
+        };
+        let base_from_object = self.region.place(&object.mesh, place_seed);
+        // 1. The camera, from its true mount.
+        let mut scene = Scene::new(Some(TableBox::from(&config.table)));
+        scene
+            .add(&object.name, object.mesh.clone(), base_from_object)
+            .map_err(|e| object.fail(e.to_string()))?;
+        let camera =
+            DepthCamera::from_config(&config.camera, lab.true_base_from_camera(&self.calibrated));
+        let cloud = camera.render(&scene, noise_seed).to_cloud();
+        // 2. Perception, with the calibrated mount.
+        let fits = perceive_trial(
+            unit,
+            &cloud,
+            &self.calibrated,
+            &self.segment,
+            &category.models,
+            &self.register,
+            register_seed,
+        )
+        .map_err(|e| object.fail(format!("perception: {e}")))?;
+        let best_fit = best_fit(&fits);
+        let best_fit_offset_mm = best_fit
+            .as_ref()
+            .map(|f| pose_error(f, &base_from_object).0 * 1e3);
+        let grasp_object = GraspObject::new(&object.mesh, Path::new(&object.name))
+            .map_err(|e| object.fail(e.to_string()))?
+            .with_table(Some(
+                config.table.height_m - base_from_object.translation.vector.z,
+            ));
+        Ok(Placed {
+            object,
+            placement,
+            unit,
+            base_from_object,
+            lab,
+            fits,
+            best_fit,
+            best_fit_offset_mm,
+            grasp_object,
+        })
+    }
+
+    /// Steps 3 to 5 for `task` and `method` on `placed`: plan, execute, grade.
+    fn trial(
+        &self,
+        dbs: &mut Databases,
+        placed: &Placed,
+        task: &str,
+        method: &str,
+        in_reach: bool,
+    ) -> Result<NovelTrial, NovelError> {
+        let (cell, object) = (self.cell, placed.object);
+        let started = std::time::Instant::now();
+        let planned = self.plan(dbs, placed, task, method)?;
+        let plan_ms = started.elapsed().as_secs_f64() * 1e3;
+        let (attempt, palm) = match planned {
+            Err(failure) => (
+                Attempt::NotPlanned {
+                    cause: failure.cause.into(),
+                    detail: failure.detail,
+                },
+                None,
+            ),
+            Ok(grasp) => self.execute(placed, &grasp),
+        };
+        // 5. The observer.
+        let seen: Observation = cell
+            .observer
+            .grade(
+                &object.name,
+                &object.mesh,
+                &placed.base_from_object,
+                &attempt,
+            )
+            .map_err(|e| object.fail(e.to_string()))?;
+        let collision = palm.is_some_and(|(p, spread)| {
+            let object_from_palm = placed.base_from_object.inverse() * p;
+            open_hand_collision(cell.hand, &placed.grasp_object, &object_from_palm, spread)
+                .is_some()
+        });
+        Ok(NovelTrial {
+            object: object.name.clone(),
+            category: object.category,
+            origin: object.origin,
+            placement: placed.placement,
+            base_from_object: PoseJson::from(&placed.base_from_object),
+            task: task.to_string(),
+            method: method.to_string(),
+            grade: seen.grade,
+            cause: seen.cause,
+            physics_grade: seen.physics.grade,
+            static_grade: seen.static_epsilon.grade,
+            epsilon: seen.epsilon,
+            force_closure: seen.epsilon > 0.0,
+            collision,
+            executed: palm.is_some(),
+            task_in_reach: in_reach,
+            note: seen.note,
+            palm: palm.map(|(p, _)| PoseJson::from(&p)),
+            spread_rad: palm.map(|(_, spread)| spread),
+            best_fit_offset_mm: placed.best_fit_offset_mm,
+            plan_ms,
+        })
+    }
+
+    /// Step 3, planning `task` with `method` on `placed` as the plan stage does it:
+    /// the grasp, with joints the executor accepts, or why there is none.
+    fn plan(
+        &self,
+        dbs: &mut Databases,
+        placed: &Placed,
+        task: &str,
+        method: &str,
+    ) -> Result<Result<PlannedGrasp, PlanFailure>, NovelError> {
+        let (cell, object) = (self.cell, placed.object);
+        let request = TrialRequest::new(placed.unit, 0, object.category.name(), task, method)
+            .map_err(|e| object.fail(e.to_string()))?
+            .with_protocol(self.protocol);
+        Ok(plan_trial(
+            cell.config,
+            &cell.robot,
+            cell.hand,
+            dbs,
+            &request,
+            &placed.fits,
+        )
+        .and_then(|mut g| {
+            executable_joints(
+                &cell.robot,
+                &self.safety,
+                &self.motions,
+                &mut g,
+                &crate::cell::harness::HOME_JOINTS_RAD,
+            )
+            .map(|()| g)
+        }))
+    }
+
+    /// Step 4, execution of `grasp` on `placed`: its joints plus the lab's errors,
+    /// then the approach (if any). The attempt for the observer, and the palm pose
+    /// and spread where the hand closed.
+    fn execute(&self, placed: &Placed, grasp: &PlannedGrasp) -> (Attempt, Option<(Pose, f64)>) {
+        let reached = match grasp.joints {
+            Some(q) => self.cell.robot.arm().palm(&placed.lab.executed_joints(&q)),
+            None => grasp.pose,
+        };
+        let palm = executed_palm(
+            self.cell.hand,
+            &placed.grasp_object,
+            &placed.base_from_object,
+            &reached,
+            grasp.spread_rad,
+            self.approach.as_ref(),
+        );
+        (
+            Attempt::Executed {
+                base_from_palm: palm,
+                spread_rad: grasp.spread_rad,
+                best_fit: placed.best_fit,
+            },
+            Some((palm, grasp.spread_rad)),
+        )
+    }
 }
 
 /// The best-fitting model's pose (lowest eps among the registered), for the
