@@ -375,9 +375,12 @@ impl Values {
     }
 
     /// Appends the value written as `token`; the error says why it does not parse.
-    fn push_text(&mut self, token: &str) -> Result<(), String> {
+    fn push_text(&mut self, token: &str) -> Result<(), ValueError> {
         let name = self.scalar_type().name();
-        let bad = || format!("`{token}` is not a {name}");
+        let bad = || ValueError::NotA {
+            token: token.to_string(),
+            type_name: name,
+        };
         match self {
             Values::Float(v) => v.push(token.parse().map_err(|_| bad())?),
             Values::Double(v) => v.push(token.parse().map_err(|_| bad())?),
@@ -777,7 +780,7 @@ fn parse_ascii_body(
                 Ok::<&str, (usize, String)>(token)
             };
             for property in &mut element.properties {
-                let context = |problem: String| {
+                let context = |problem: ValueError| {
                     (
                         line_no,
                         format!(
@@ -831,9 +834,23 @@ fn parse_ascii_body(
 }
 
 /// The list length held in a one-value count column; negative lengths are errors.
-fn list_length(count: &Values) -> Result<usize, String> {
+fn list_length(count: &Values) -> Result<usize, ValueError> {
     let n = count.get_i64(0).expect("list counts are integers");
-    usize::try_from(n).map_err(|_| format!("negative list length {n}"))
+    usize::try_from(n).map_err(|_| ValueError::NegativeListLength(n))
+}
+
+/// Why a value of a PLY body is not one of its property's.
+#[derive(Debug, thiserror::Error)]
+enum ValueError {
+    /// The text is not a number of the property's type.
+    #[error("`{token}` is not a {type_name}")]
+    NotA {
+        token: String,
+        type_name: &'static str,
+    },
+    /// A list's length is negative.
+    #[error("negative list length {0}")]
+    NegativeListLength(i64),
 }
 
 /// Parses a binary body; errors carry "element `e` row r, byte offset o" (offsets

@@ -43,13 +43,25 @@ pub struct ChaosArgs {
     pub json: bool,
 }
 
-fn parse_kind(text: &str) -> Result<FaultKind, String> {
+/// A fault kind `cell chaos` does not know.
+#[derive(Debug, thiserror::Error)]
+#[error("unknown fault {text:?} (use {})", fault_names())]
+struct UnknownFault {
+    text: String,
+}
+
+/// The fault kinds' names, comma-separated.
+fn fault_names() -> String {
+    let names: Vec<&str> = FaultKind::ALL.iter().map(|k| k.name()).collect();
+    names.join(", ")
+}
+
+fn parse_kind(text: &str) -> Result<FaultKind, UnknownFault> {
     FaultKind::ALL
         .into_iter()
         .find(|k| k.name() == text)
-        .ok_or_else(|| {
-            let names: Vec<&str> = FaultKind::ALL.iter().map(|k| k.name()).collect();
-            format!("unknown fault {text:?} (use {})", names.join(", "))
+        .ok_or_else(|| UnknownFault {
+            text: text.to_string(),
         })
 }
 

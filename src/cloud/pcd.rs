@@ -56,7 +56,7 @@ impl Field {
     }
 
     /// Parses one ASCII value of this field as `f32` (the exact text for floats).
-    fn parse_text(&self, token: &str) -> Result<f32, String> {
+    fn parse_text(&self, token: &str) -> Result<f32, BadValue> {
         let parsed = match (self.kind, self.size) {
             (FieldType::F, 4) => token.parse::<f32>().ok(),
             (FieldType::F, _) => token.parse::<f64>().ok().map(|v| v as f32),
@@ -71,13 +71,23 @@ impl Field {
                 .filter(|&v| self.size == 8 || v < 1 << (8 * self.size))
                 .map(|v| v as f32),
         };
-        parsed.ok_or_else(|| {
-            format!(
-                "field `{}`: `{token}` is not a {:?}{} value",
-                self.name, self.kind, self.size
-            )
+        parsed.ok_or_else(|| BadValue {
+            field: self.name.clone(),
+            token: token.to_string(),
+            kind: self.kind,
+            size: self.size,
         })
     }
+}
+
+/// An ASCII value that is not one of its field's type and size.
+#[derive(Debug, thiserror::Error)]
+#[error("field `{field}`: `{token}` is not a {kind:?}{size} value")]
+struct BadValue {
+    field: String,
+    token: String,
+    kind: FieldType,
+    size: usize,
 }
 
 /// True when `v` fits a signed integer of `size` bytes.

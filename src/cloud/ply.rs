@@ -50,7 +50,8 @@ pub fn parse_ply_cloud(bytes: &[u8], source: &Path) -> Result<PointCloud, CloudE
             .map(|i| Vector3::new(x[i], y[i], z[i]))
             .collect()
     });
-    let (width, height) = organisation(&ply, vertex.count).map_err(header_error)?;
+    let (width, height) =
+        organisation(&ply, vertex.count).map_err(|e| header_error(e.to_string()))?;
     Ok(PointCloud {
         points,
         normals,
@@ -61,7 +62,7 @@ pub fn parse_ply_cloud(bytes: &[u8], source: &Path) -> Result<PointCloud, CloudE
 
 /// The `width x height` of `count` points from the `obj_info width W` / `obj_info
 /// height H` lines: `count x 1` when there are none.
-fn organisation(ply: &Ply, count: usize) -> Result<(u32, u32), String> {
+fn organisation(ply: &Ply, count: usize) -> Result<(u32, u32), OrganisationError> {
     let mut width = None;
     let mut height = None;
     for info in &ply.obj_info {
@@ -75,15 +76,12 @@ fn organisation(ply: &Ply, count: usize) -> Result<(u32, u32), String> {
             [text] => text.parse::<u32>().ok(),
             _ => None,
         };
-        *slot = Some(value.ok_or_else(|| {
-            format!(
-                "`obj_info {info}`: expected `obj_info {} <count>`",
-                words[0]
-            )
+        *slot = Some(value.ok_or_else(|| OrganisationError::BadInfo {
+            info: info.clone(),
+            key: words[0].to_string(),
         })?);
     }
-    let count_u32 =
-        u32::try_from(count).map_err(|_| format!("{count} vertices is too many for a cloud"))?;
+    let count_u32 = u32::try_from(count).map_err(|_| OrganisationError::TooMany { count })?;
     let (width, height) = match (width, height) {
         (None, None) => (count_u32, 1),
         (Some(w), None) => (w, 1),
@@ -91,11 +89,31 @@ fn organisation(ply: &Ply, count: usize) -> Result<(u32, u32), String> {
         (Some(w), Some(h)) => (w, h),
     };
     if width as u64 * height as u64 != count as u64 {
-        return Err(format!(
-            "obj_info width {width} x height {height} does not match {count} vertices"
-        ));
+        return Err(OrganisationError::Mismatch {
+            width,
+            height,
+            count,
+        });
     }
     Ok((width, height))
+}
+
+/// Why the `obj_info` lines give no organisation of the vertices.
+#[derive(Debug, thiserror::Error)]
+enum OrganisationError {
+    /// A `width` or `height` line without one count.
+    #[error("`obj_info {info}`: expected `obj_info {key} <count>`")]
+    BadInfo { info: String, key: String },
+    /// More vertices than a cloud's `u32` shape holds.
+    #[error("{count} vertices is too many for a cloud")]
+    TooMany { count: usize },
+    /// The shape does not hold the vertices.
+    #[error("obj_info width {width} x height {height} does not match {count} vertices")]
+    Mismatch {
+        width: u32,
+        height: u32,
+        count: usize,
+    },
 }
 
 /// Encodes `cloud` as a PLY file (ASCII, or binary little-endian); says what is

@@ -95,27 +95,47 @@ pub fn parse_obj(reader: impl BufRead, path: &Path) -> Result<TriMesh, MeshError
     Ok(mesh)
 }
 
+/// Why a face corner names no vertex.
+#[derive(Debug, thiserror::Error)]
+enum FaceIndexError {
+    /// The index is not a whole number.
+    #[error("vertex index {0:?} is not an integer")]
+    NotAnInteger(String),
+    /// OBJ counts from 1.
+    #[error("vertex index 0 (OBJ indices start at 1)")]
+    Zero,
+    /// A negative index reaching before the first vertex.
+    #[error("relative index {index} reaches before the first vertex ({count} read so far)")]
+    BeforeFirst {
+        /// The relative index.
+        index: i64,
+        /// Vertices read so far.
+        count: usize,
+    },
+    /// An index beyond what a mesh holds.
+    #[error("vertex index {0} is too large")]
+    TooLarge(i64),
+}
+
 /// The zero-based vertex index of one face corner `i`, `i/t`, `i/t/n` or `i//n`,
 /// given `count` vertices read so far (for negative, relative indices).
-fn face_index(word: &str, count: usize) -> Result<u32, String> {
+fn face_index(word: &str, count: usize) -> Result<u32, FaceIndexError> {
     let first = word.split('/').next().unwrap_or("");
     let index: i64 = first
         .parse()
-        .map_err(|_| format!("vertex index {first:?} is not an integer"))?;
+        .map_err(|_| FaceIndexError::NotAnInteger(first.to_string()))?;
     let zero_based = match index {
-        0 => return Err("vertex index 0 (OBJ indices start at 1)".to_string()),
+        0 => return Err(FaceIndexError::Zero),
         i if i > 0 => i - 1,
         i => {
             let k = count as i64 + i;
             if k < 0 {
-                return Err(format!(
-                    "relative index {i} reaches before the first vertex ({count} read so far)"
-                ));
+                return Err(FaceIndexError::BeforeFirst { index: i, count });
             }
             k
         }
     };
-    u32::try_from(zero_based).map_err(|_| format!("vertex index {index} is too large"))
+    u32::try_from(zero_based).map_err(|_| FaceIndexError::TooLarge(index))
 }
 
 /// Writes `mesh` as OBJ text (`v` lines with round-trip exact numbers, then `f`).

@@ -114,7 +114,7 @@ pub fn bench_camera(config_path: &Path, args: CameraBenchArgs) -> anyhow::Result
     let conversion_ms_median = median(&mut times);
     let (fakenect, fakenect_skipped) = match fakenect_rate(&frame, &dir, args.frames, range) {
         Ok(rate) => (Some(rate), None),
-        Err(why) => (None, Some(why)),
+        Err(why) => (None, Some(why.to_string())),
     };
     let report = CameraBench {
         workload: format!(
@@ -136,25 +136,39 @@ pub fn bench_camera(config_path: &Path, args: CameraBenchArgs) -> anyhow::Result
     Ok(ExitCode::SUCCESS)
 }
 
+/// Why there is no fakenect figure.
+#[derive(Debug, thiserror::Error)]
+enum FakenectSkipped {
+    /// fakenect is not installed.
+    #[cfg(feature = "kinect")]
+    #[error("{}: missing (apt-get install libfreenect-dev)", library.display())]
+    Missing { library: PathBuf },
+    /// The recording or the backend failed.
+    #[cfg(feature = "kinect")]
+    #[error(transparent)]
+    Kinect(#[from] crate::hw::kinect::KinectError),
+    /// The backend is not built.
+    #[cfg(not(feature = "kinect"))]
+    #[error(
+        "built without the kinect feature (cargo build --release --features kinect --bin cell)"
+    )]
+    NoKinectFeature,
+}
+
 #[cfg(feature = "kinect")]
 fn fakenect_rate(
     frame: &RawFrame,
     dir: &Path,
     frames: usize,
     range: [f32; 2],
-) -> Result<FakenectRate, String> {
+) -> Result<FakenectRate, FakenectSkipped> {
     use crate::hw::kinect::device::{Kinect, KinectOptions};
     let library = PathBuf::from(FAKENECT_LIBRARY);
     if !library.exists() {
-        return Err(format!(
-            "{}: missing (apt-get install libfreenect-dev)",
-            library.display()
-        ));
+        return Err(FakenectSkipped::Missing { library });
     }
     let recording = dir.join("recording");
-    frame
-        .write_recording(&recording, frames)
-        .map_err(|e| e.to_string())?;
+    frame.write_recording(&recording, frames)?;
     // fakenect reads FAKENECT_PATH when it first plays; nothing else in this
     // process reads the environment concurrently.
     std::env::set_var("FAKENECT_PATH", &recording);
@@ -165,15 +179,14 @@ fn fakenect_rate(
         frame_timeout_s: 2.0,
         settle_frames: 0,
         library: Some(library.clone()),
-    })
-    .map_err(|e| e.to_string())?;
+    })?;
     // The first grab starts playback; time the rest.
-    kinect.grab().map_err(|e| e.to_string())?;
+    kinect.grab()?;
     let started = Instant::now();
     let mut grabs = Vec::with_capacity(frames);
     for _ in 1..frames {
         let t = Instant::now();
-        let f = kinect.grab().map_err(|e| e.to_string())?;
+        let f = kinect.grab()?;
         std::hint::black_box(kinect.to_cloud(&f, range));
         grabs.push(t.elapsed().as_secs_f64() * 1e3);
     }
@@ -193,9 +206,6 @@ fn fakenect_rate(
     _dir: &Path,
     _frames: usize,
     _range: [f32; 2],
-) -> Result<FakenectRate, String> {
-    Err(
-        "built without the kinect feature (cargo build --release --features kinect --bin cell)"
-            .into(),
-    )
+) -> Result<FakenectRate, FakenectSkipped> {
+    Err(FakenectSkipped::NoKinectFeature)
 }

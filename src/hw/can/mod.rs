@@ -113,7 +113,7 @@ pub enum CanError {
         /// Packet length in bytes.
         len: usize,
         /// What is wrong with it.
-        problem: String,
+        problem: PacketError,
     },
     /// Writing the candump log failed.
     #[error("candump log {path}: {error}")]
@@ -123,6 +123,35 @@ pub enum CanError {
         /// The I/O error.
         error: std::io::Error,
     },
+}
+
+/// What is wrong with a packet from the cross-process hub ([`CanError::BadPacket`]).
+#[derive(Debug, thiserror::Error)]
+pub enum PacketError {
+    /// Not the length of one encoded frame.
+    #[error("expected {expected} bytes")]
+    Length {
+        /// The length of an encoded frame.
+        expected: usize,
+    },
+    /// The identifier word is not an 11-bit data frame's.
+    #[error("identifier word {raw_id:#010x} is not a standard data frame")]
+    NotStandard {
+        /// The identifier word.
+        raw_id: u32,
+    },
+    /// More than 8 data bytes.
+    #[error("DLC {dlc} exceeds 8")]
+    Dlc {
+        /// The data length code.
+        dlc: usize,
+    },
+    /// The frame itself is invalid.
+    #[error(transparent)]
+    Frame(Box<CanError>),
+    /// The first packet of a connection is not the hub's greeting.
+    #[error("expected the hub's greeting (not a graspcell CAN hub?)")]
+    NotGreeting,
 }
 
 /// Error state of a CAN node, as CAN controllers report it.

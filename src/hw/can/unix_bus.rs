@@ -21,7 +21,8 @@
 
 use super::virtual_bus::FaultInjector;
 use super::{
-    BusState, CanBus, CanError, CanFrame, FaultConfig, FaultCounts, SEND_TIMEOUT, VIRTUAL_PREFIX,
+    BusState, CanBus, CanError, CanFrame, FaultConfig, FaultCounts, PacketError, SEND_TIMEOUT,
+    VIRTUAL_PREFIX,
 };
 use socket2::{Domain, SockAddr, Socket, Type};
 use std::io::ErrorKind;
@@ -91,21 +92,21 @@ fn encode_packet(frame: &CanFrame) -> [u8; PACKET_LEN] {
 }
 
 /// Decodes one packet; the error says what is wrong with it.
-fn decode_packet(packet: &[u8]) -> Result<CanFrame, String> {
+fn decode_packet(packet: &[u8]) -> Result<CanFrame, PacketError> {
     if packet.len() != PACKET_LEN {
-        return Err(format!("expected {PACKET_LEN} bytes"));
+        return Err(PacketError::Length {
+            expected: PACKET_LEN,
+        });
     }
     let raw_id = u32::from_le_bytes([packet[0], packet[1], packet[2], packet[3]]);
     if raw_id > 0x7FF {
-        return Err(format!(
-            "identifier word {raw_id:#010x} is not a standard data frame"
-        ));
+        return Err(PacketError::NotStandard { raw_id });
     }
     let len = usize::from(packet[4]);
     if len > 8 {
-        return Err(format!("DLC {len} exceeds 8"));
+        return Err(PacketError::Dlc { dlc: len });
     }
-    CanFrame::new(raw_id as u16, &packet[8..8 + len]).map_err(|e| e.to_string())
+    CanFrame::new(raw_id as u16, &packet[8..8 + len]).map_err(|e| PacketError::Frame(Box::new(e)))
 }
 
 fn new_seqpacket_socket() -> std::io::Result<Socket> {
@@ -530,7 +531,7 @@ impl UnixBus {
                 return Err(ConnectError::Other(CanError::BadPacket {
                     interface,
                     len: n,
-                    problem: "expected the hub's greeting (not a graspcell CAN hub?)".into(),
+                    problem: PacketError::NotGreeting,
                 }))
             }
             Err(e) if e.kind() == ErrorKind::ConnectionReset => return Err(ConnectError::NoHub(e)),
@@ -663,15 +664,14 @@ mod tests {
             [0x66, 0x05, 0, 0, 6, 0, 0, 0, 0xB0, 0, 1, 2, 3, 4, 0, 0]
         );
         assert_eq!(decode_packet(&packet).unwrap(), frame);
-        assert!(decode_packet(&packet[..15])
-            .unwrap_err()
-            .contains("16 bytes"));
+        let text = |bytes: &[u8]| decode_packet(bytes).unwrap_err().to_string();
+        assert!(text(&packet[..15]).contains("16 bytes"));
         let mut extended = packet;
         extended[3] = 0x80;
-        assert!(decode_packet(&extended).unwrap_err().contains("0x80000566"));
+        assert!(text(&extended).contains("0x80000566"));
         let mut long = packet;
         long[4] = 9;
-        assert!(decode_packet(&long).unwrap_err().contains("DLC 9"));
+        assert!(text(&long).contains("DLC 9"));
     }
 
     #[test]
