@@ -50,7 +50,7 @@ fn every_shipped_database_loads_and_its_grasps_are_force_closure() {
                 &hand,
                 &object,
                 &pose,
-                g.spread_rad,
+                &g.preshape(),
                 &options,
                 &params,
                 false,
@@ -135,6 +135,7 @@ fn grasp(name: &str, task: &str, pose: &Pose) -> TeachGrasp {
         task: task.into(),
         pose: PoseJson::from(pose),
         spread_rad: 0.0,
+        preshape_rad: graspcell::robot::PreshapeRad::OPEN,
     }
 }
 

@@ -69,6 +69,7 @@ fn plan(robot: &Robot, palm: &Pose, pregrasp: &Pose) -> ExecutionRequest {
         joints_rad: grasp,
         pregrasp_joints_rad: pre,
         spread_rad: 0.3,
+        preshape_rad: graspcell::robot::PreshapeRad::OPEN,
         task: None,
         method: None,
     }

@@ -87,7 +87,7 @@ fn library_side_grasp_of_a_35_mm_cylinder_is_force_closure_with_three_fingers() 
         &hand,
         &object,
         &side_pose(radius, 1e-4),
-        0.0,
+        &graspcell::robot::HandPose::open(0.0),
         &AutoGraspOptions::default(),
         &QualityParams::default(),
         false,

@@ -23,6 +23,7 @@ use crate::mesh::TriMesh;
 use crate::quality::autograsp::{AutoGraspOptions, GraspSimError};
 use crate::quality::stability::StabilityOptions;
 use crate::quality::QualityParams;
+use crate::robot::PreshapeRad;
 use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
@@ -266,6 +267,10 @@ pub struct GraspEntry {
     pub pose: PoseJson,
     /// Spread (rad).
     pub spread_rad: f64,
+    /// Pre-shape: each finger's flex before the approach (rad); open (absent) by
+    /// default.
+    #[serde(default, skip_serializing_if = "PreshapeRad::is_open")]
+    pub preshape_rad: PreshapeRad,
     /// Quality: Ferrari–Canny epsilon (> 0).
     pub q: f64,
     /// Grasp wrench space volume.
@@ -385,6 +390,11 @@ impl GraspEntry {
             .unwrap_or_else(|_| Pose::identity());
         params_from_pose(&pose)
     }
+
+    /// The hand's shape before the approach: the spread and the pre-shape.
+    pub fn preshape(&self) -> crate::robot::HandPose {
+        self.preshape_rad.at_spread(self.spread_rad)
+    }
 }
 
 impl DatabaseFile {
@@ -493,6 +503,12 @@ impl DatabaseFile {
                     g.spread_rad.to_string(),
                     "must be finite",
                 );
+            }
+            if let Some(problem) = g.preshape_rad.problem(crate::robot::FLEX_LIMITS_RAD) {
+                return Err(CategoryError::Grasp {
+                    grasp: what(),
+                    problem,
+                });
             }
             if !(g.q > 0.0 && g.q.is_finite()) {
                 return invalid(what(), "q", g.q.to_string(), "must be finite and > 0");

@@ -7,9 +7,18 @@
 //! clear of the handle; mug and bottle `side`: from the side opposite the handle,
 //! the fingers wrapping the body; mug `handle`: from the handle's side, the fingers
 //! around its bar; hammer and knife `use`: from above, the fingers around the
-//! handle). A candidate varies the template by a lateral offset, three angles and
-//! the spread; the palm then approaches along its z axis until the open hand
-//! touches (GraspIt!'s "approach to contact") and the hand closes (auto-grasp).
+//! handle). A candidate varies the template by a lateral offset, three angles,
+//! the spread and the pre-shape; the palm then approaches along its z axis until
+//! the hand in its pre-shape touches (GraspIt!'s "approach to contact") and the
+//! hand closes (auto-grasp).
+//!
+//! Hammers and knives lie flat, and with the table present (`--table-z`) the open
+//! fingers meet it before anything else: their templates pre-shape the fingers
+//! (every flex about 1.2 rad, just past the fingertips' lowest point, so that
+//! closing sweeps the tips inward and up from the table) and pinch the hammer's
+//! head across (F3 on the face side, F1 and F2 spread about the handle) and the
+//! knife's handle across. A pinch of a hammer's handle does not hold: the distal
+//! links, bent inward, meet its upper edges first and push it down.
 //! A seeded random search followed by a pattern search maximises epsilon within the
 //! template's bounds, so the suggestion stays a grasp of the intended kind.
 
@@ -22,6 +31,7 @@ use crate::quality::autograsp::{
 };
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
+use crate::robot::{HandPose, PreshapeRad};
 use nalgebra::{Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -39,16 +49,18 @@ pub struct Template {
     pub target: Point3<f64>,
     /// Nominal spread (rad).
     pub spread_rad: f64,
+    /// Nominal pre-shape: every finger's flex before the approach (rad; 0 open).
+    pub preshape_rad: f64,
     /// Ranges of the search ([`Offsets`]): half-ranges of the lateral offset (m),
-    /// roll/pitch/yaw about the palm axes (rad) and spread (rad), and the largest
-    /// back-off from contact (m).
+    /// roll/pitch/yaw about the palm axes (rad) and spread (rad), the largest
+    /// back-off from contact (m), and the half-range of the pre-shape (rad).
     pub bounds: Offsets,
 }
 
 /// A candidate's offsets from its template: lateral x, y (m, palm frame), roll,
 /// pitch, yaw (rad, palm axes), spread (rad), back-off from contact along the
-/// approach (m, >= 0).
-pub type Offsets = [f64; 7];
+/// approach (m, >= 0), pre-shape flex (rad).
+pub type Offsets = [f64; 8];
 
 /// Settings of the search.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -80,6 +92,8 @@ pub struct Suggestion {
     pub params: PoseParams,
     /// Spread (rad).
     pub spread_rad: f64,
+    /// Pre-shape (rad).
+    pub preshape_rad: PreshapeRad,
     /// Epsilon of the grasp.
     pub epsilon: f64,
 }
@@ -151,7 +165,7 @@ fn yaw_clear_of_handle(hand: &HandModel, spread_rad: f64) -> f64 {
 /// The templates of an instance (object frame of its procedural mesh).
 pub fn templates(hand: &HandModel, params: &Params, mesh: &TriMesh) -> Vec<Template> {
     let side = basis(Vector3::z(), -Vector3::y(), Vector3::x());
-    let narrow = [0.008, 0.008, 0.15, 0.15, 0.15, 0.2, 0.0];
+    let narrow = [0.008, 0.008, 0.15, 0.15, 0.15, 0.2, 0.0, 0.0];
     match params {
         Params::Mug(m) => {
             let spread = 0.5;
@@ -165,13 +179,15 @@ pub fn templates(hand: &HandModel, params: &Params, mesh: &TriMesh) -> Vec<Templ
                     ),
                     target: Point3::new(0.0, 0.0, m.height_m),
                     spread_rad: spread,
-                    bounds: [0.008, 0.008, 0.12, 0.12, 0.3, 0.5, 0.06],
+                    preshape_rad: 0.0,
+                    bounds: [0.008, 0.008, 0.12, 0.12, 0.3, 0.5, 0.06, 0.0],
                 },
                 Template {
                     task: "side",
                     orientation: side,
                     target: Point3::new(0.0, 0.0, (0.5 * m.height_m).max(0.05)),
                     spread_rad: 0.0,
+                    preshape_rad: 0.0,
                     bounds: narrow,
                 },
             ];
@@ -181,6 +197,7 @@ pub fn templates(hand: &HandModel, params: &Params, mesh: &TriMesh) -> Vec<Templ
                     orientation: basis(Vector3::z(), Vector3::y(), -Vector3::x()),
                     target: Point3::new(0.0, 0.0, 0.5 * (h.lower_z_m + h.upper_z_m)),
                     spread_rad: 0.0,
+                    preshape_rad: 0.0,
                     bounds: narrow,
                 });
             }
@@ -195,25 +212,38 @@ pub fn templates(hand: &HandModel, params: &Params, mesh: &TriMesh) -> Vec<Templ
                 (0.5 * b.body_height_m).clamp(0.05, (b.body_height_m - 0.03).max(0.05)),
             ),
             spread_rad: 0.0,
+            preshape_rad: 0.0,
             bounds: narrow,
         }],
-        Params::Hammer(_) | Params::Knife(_) => {
-            // The handle runs along +x to the end of the object; grasp it at 60 %
-            // (hammer, from the head) or the middle (knife) of its length.
+        Params::Hammer(h) => {
+            // The head (along y at the -x end) pinched across from above: palm y
+            // along -x puts F3 on the face side, F1 and F2 (spread apart) on the
+            // handle's side, one either side of it.
             let (lo, hi) = crate::mesh::topology::bounding_box(mesh)
                 .unwrap_or((Point3::origin(), Point3::origin()));
-            let x = match params {
-                Params::Hammer(h) => hi.x - 0.4 * h.handle_length_m,
-                Params::Knife(k) => hi.x - 0.5 * k.handle_length_m,
-                _ => unreachable!(),
-            };
+            let x = lo.x + 0.5 * h.head_section_m;
+            vec![Template {
+                task: "use",
+                orientation: UnitQuaternion::from_euler_angles(PI, 0.0, -0.5 * PI),
+                target: Point3::new(x, 0.0, hi.z),
+                spread_rad: 0.3,
+                preshape_rad: 1.2,
+                bounds: [0.01, 0.004, 0.1, 0.1, 0.1, 0.15, 0.01, 0.1],
+            }]
+        }
+        Params::Knife(k) => {
+            // The handle, across, at the middle of its length.
+            let (lo, hi) = crate::mesh::topology::bounding_box(mesh)
+                .unwrap_or((Point3::origin(), Point3::origin()));
+            let x = hi.x - 0.5 * k.handle_length_m;
             let (slo, shi) = slice_bounds(mesh, x, 0.005).unwrap_or((lo, hi));
             vec![Template {
                 task: "use",
                 orientation: UnitQuaternion::from_euler_angles(PI, 0.0, 0.0),
                 target: Point3::new(x, 0.5 * (slo.y + shi.y), shi.z),
                 spread_rad: 0.0,
-                bounds: [0.008, 0.025, 0.4, 0.15, 0.15, 0.3, 0.04],
+                preshape_rad: 1.35,
+                bounds: [0.03, 0.006, 0.15, 0.15, 0.15, 0.3, 0.01, 0.15],
             }]
         }
     }
@@ -241,19 +271,23 @@ impl Template {
         })
     }
 
-    /// The palm pose and spread of candidate `u` (offsets from the template: lateral
-    /// x, y (m), roll, pitch, yaw (rad), spread (rad)) after approaching `object` to
-    /// contact from `standoff_m` away; None when the open hand never touches or
-    /// starts in collision.
+    /// The palm pose and the hand's pre-shape (spread and flex) of candidate `u`
+    /// (offsets from the template: lateral x, y (m), roll, pitch, yaw (rad), spread
+    /// (rad), back-off (m), pre-shape (rad)) after approaching `object` to contact
+    /// from `standoff_m` away; None when the hand never touches or starts in
+    /// collision.
     pub fn place(
         &self,
         hand: &HandModel,
         object: &GraspObject,
         u: &Offsets,
         standoff_m: f64,
-    ) -> Option<(Pose, f64)> {
+    ) -> Option<(Pose, HandPose)> {
         let spread =
             (self.spread_rad + u[5]).clamp(hand.spread_limits_rad.0, hand.spread_limits_rad.1);
+        let (flex_lo, flex_hi) = crate::robot::FLEX_LIMITS_RAD;
+        let preshape =
+            PreshapeRad([(self.preshape_rad + u[7]).clamp(flex_lo, flex_hi); 3]).at_spread(spread);
         let rotation = self.orientation * UnitQuaternion::from_euler_angles(u[2], u[3], u[4]);
         let centre = finger_circle_centre(hand, spread);
         // The finger circle's centre (palm xy) on the line through the target.
@@ -266,7 +300,7 @@ impl Template {
             )
         };
         let collides =
-            |travel: f64| open_hand_collision(hand, object, &at(travel), spread).is_some();
+            |travel: f64| open_hand_collision(hand, object, &at(travel), &preshape).is_some();
         if collides(0.0) {
             return None;
         }
@@ -286,7 +320,7 @@ impl Template {
                     }
                 }
                 // 20 um short of the contact, so that rounding cannot make it touch.
-                return Some((at(a - 2e-5 - u[6]), spread));
+                return Some((at(a - 2e-5 - u[6]), preshape));
             }
             free = next;
         }
@@ -310,19 +344,19 @@ struct Search<'a> {
 }
 
 impl Search<'_> {
-    fn place(&self, u: &Offsets) -> Option<(Pose, f64)> {
+    fn place(&self, u: &Offsets) -> Option<(Pose, HandPose)> {
         self.template
             .place(self.hand, self.object, u, self.standoff_m)
     }
 
     /// Epsilon when force closure; otherwise a negative score that grows with the
     /// number of fingers (and the palm) touching, to lead the search toward closure.
-    fn score_pose(&self, pose: &Pose, spread: f64) -> f64 {
+    fn score_pose(&self, pose: &Pose, preshape: &HandPose) -> f64 {
         let Ok(e) = evaluate_grasp(
             self.hand,
             self.object,
             pose,
-            spread,
+            preshape,
             &self.options,
             &self.quality,
             false,
@@ -352,7 +386,7 @@ impl Search<'_> {
 
     fn score(&self, u: &Offsets) -> f64 {
         match self.place(u) {
-            Some((pose, spread)) => self.score_pose(&pose, spread),
+            Some((pose, preshape)) => self.score_pose(&pose, &preshape),
             None => -1.0,
         }
     }
@@ -375,7 +409,7 @@ pub fn suggest_grasp(
         quality: *quality,
     };
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
-    let mut best_u = [0.0; 7];
+    let mut best_u = [0.0; 8];
     let mut best = search.score(&best_u);
     for _ in 0..options.samples {
         let u = template.sample(&mut rng);
@@ -393,7 +427,7 @@ pub fn suggest_grasp(
     let mut evaluations = 0;
     while evaluations < options.refine_evaluations && step[0] > first[0] / 32.0 {
         let mut improved = false;
-        for i in 0..7 {
+        for i in 0..8 {
             if step[i] <= 0.0 {
                 continue;
             }
@@ -415,22 +449,27 @@ pub fn suggest_grasp(
     if best <= 0.0 {
         return None;
     }
-    let (pose, spread) = search.place(&best_u)?;
+    let (pose, preshape) = search.place(&best_u)?;
     // Rounded for the file (0.01 mm, 1e-5 rad), kept only if still as good.
     let exact = params_from_pose(&pose);
     let rounded = exact.map(|v| (v * 1e5).round() / 1e5);
-    let spread_rounded = (spread * 1e5).round() / 1e5;
-    let eps_rounded = search.score_pose(&pose_from_params(&rounded), spread_rounded);
-    let eps_exact = search.score_pose(&pose, spread);
-    let (params, spread_rad, epsilon) = if eps_rounded > 0.0 {
-        (rounded, spread_rounded, eps_rounded)
+    let round = |v: f64| (v * 1e5).round() / 1e5;
+    let preshape_rounded = HandPose {
+        spread_rad: round(preshape.spread_rad),
+        flex_rad: preshape.flex_rad.map(round),
+    };
+    let eps_rounded = search.score_pose(&pose_from_params(&rounded), &preshape_rounded);
+    let eps_exact = search.score_pose(&pose, &preshape);
+    let (params, preshape, epsilon) = if eps_rounded > 0.0 {
+        (rounded, preshape_rounded, eps_rounded)
     } else {
-        (exact, spread, eps_exact)
+        (exact, preshape, eps_exact)
     };
     (epsilon > 0.0).then_some(Suggestion {
         task: template.task,
         params,
-        spread_rad,
+        spread_rad: preshape.spread_rad,
+        preshape_rad: PreshapeRad(preshape.flex_rad),
         epsilon,
     })
 }
@@ -504,6 +543,7 @@ pub fn suggest_teach_file(
                             quat_xyzw: None,
                         },
                         spread_rad: s.spread_rad,
+                        preshape_rad: s.preshape_rad,
                     });
                 }
             }

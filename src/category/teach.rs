@@ -14,11 +14,18 @@
 //! task = "top"
 //! pose = { xyz = [0.0, 0.0, 0.155], rpy = [3.14159, 0.0, 1.0472] }
 //! spread_rad = 1.0472       # optional, 0 by default
+//! preshape_rad = 0.0        # optional: each finger's flex before the approach (rad),
+//!                           # one value or three [F1, F2, F3]; 0 (open) by default
 //! ```
+//!
+//! A pre-shape (fingers partly closed before the approach) is what a tool lying
+//! flat on the table needs: the open fingers would meet the table first.
 
 use super::CategoryError;
 use crate::geometry::{params_from_pose, Pose, PoseJson, PoseParams};
 use crate::mesh::procedural::Category;
+use crate::robot::hand::HandModel;
+use crate::robot::PreshapeRad;
 use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
@@ -66,6 +73,9 @@ pub struct TeachGrasp {
     /// Spread of F1 and F2 (rad).
     #[serde(default)]
     pub spread_rad: f64,
+    /// Each finger's flex before the approach (rad); open by default.
+    #[serde(default, skip_serializing_if = "PreshapeRad::is_open")]
+    pub preshape_rad: PreshapeRad,
 }
 
 impl TeachModel {
@@ -95,6 +105,8 @@ pub struct CheckedGrasp {
     pub params: PoseParams,
     /// Spread (rad).
     pub spread_rad: f64,
+    /// Pre-shape: each finger's flex before the approach (rad).
+    pub preshape_rad: PreshapeRad,
 }
 
 impl TeachFile {
@@ -153,6 +165,14 @@ impl TeachFile {
                     string(&g.task),
                     float(g.spread_rad)
                 );
+                if !g.preshape_rad.is_open() {
+                    let [a, b, c] = g.preshape_rad.0;
+                    text += &if a == b && b == c {
+                        format!("preshape_rad = {}\n", float(a))
+                    } else {
+                        format!("preshape_rad = {}\n", list(&g.preshape_rad.0))
+                    };
+                }
             }
         }
         text
@@ -160,14 +180,21 @@ impl TeachFile {
 
     /// Checks names, tasks, poses and models against `category`, with mesh files
     /// under `models_dir`; returns the grasps in file order (a file of models
-    /// without grasps, e.g. test objects, is valid). `spread_limits_rad`
-    /// bounds the spread.
+    /// without grasps, e.g. test objects, is valid). `hand`'s joint ranges bound
+    /// the spread and the pre-shape.
     pub fn check(
         &self,
         category: Category,
         models_dir: &Path,
-        spread_limits_rad: (f64, f64),
+        hand: &HandModel,
     ) -> Result<Vec<CheckedGrasp>, CategoryError> {
+        let spread_limits_rad = hand.spread_limits_rad;
+        let flex_limits_rad = hand
+            .fingers
+            .iter()
+            .fold((f64::MIN, f64::MAX), |(lo, hi), f| {
+                (lo.max(f.flex_limits_rad.0), hi.min(f.flex_limits_rad.1))
+            });
         if let Some(c) = self.category {
             if c != category {
                 return Err(CategoryError::CategoryMismatch {
@@ -242,6 +269,12 @@ impl TeachFile {
                         ),
                     });
                 }
+                if let Some(problem) = g.preshape_rad.problem(flex_limits_rad) {
+                    return Err(CategoryError::Grasp {
+                        grasp: g.name.clone(),
+                        problem,
+                    });
+                }
                 out.push(CheckedGrasp {
                     name: g.name.clone(),
                     model: m,
@@ -249,6 +282,7 @@ impl TeachFile {
                     params: params_from_pose(&pose),
                     pose,
                     spread_rad: g.spread_rad,
+                    preshape_rad: g.preshape_rad,
                 });
             }
         }
@@ -295,5 +329,65 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("colour"));
+    }
+
+    #[test]
+    fn a_preshape_is_one_flex_or_three_and_out_of_range_names_the_grasp() {
+        let text = |preshape: &str| {
+            format!(
+                "[[model]]\nmesh = \"h.obj\"\n[[model.grasp]]\nname = \"h/use\"\ntask = \"use\"\n\
+                 pose = {{ xyz = [0.0, 0.0, 0.2], rpy = [3.14159, 0.0, 0.0] }}\n{preshape}"
+            )
+        };
+        let grasp = |preshape: &str| parse(&text(preshape)).unwrap().models[0].grasps[0].clone();
+        assert_eq!(grasp("").preshape_rad, PreshapeRad::OPEN);
+        assert_eq!(
+            grasp("preshape_rad = 1.2").preshape_rad,
+            PreshapeRad([1.2; 3])
+        );
+        assert_eq!(
+            grasp("preshape_rad = [1.0, 1.1, 1.2]").preshape_rad,
+            PreshapeRad([1.0, 1.1, 1.2])
+        );
+        assert!(parse(&text("preshape_rad = [1.0, 1.1]"))
+            .unwrap_err()
+            .to_string()
+            .contains("preshape_rad"));
+        // Written back as it was given; open grasps write nothing.
+        for given in ["preshape_rad = 1.2", "preshape_rad = [1.0, 1.1, 1.2]", ""] {
+            let file = parse(&text(given)).unwrap();
+            let written = file.to_toml("");
+            assert_eq!(
+                written.contains("preshape_rad"),
+                !given.is_empty(),
+                "{written}"
+            );
+            assert_eq!(parse(&written).unwrap(), file);
+        }
+        // Out of the flex range: the grasp and the finger are named.
+        let dir = crate::fsio::TempDir::new("teach-preshape").unwrap();
+        std::fs::write(dir.join("h.obj"), "").unwrap();
+        let robot = crate::robot::shipped_robot();
+        let hand =
+            HandModel::from_description(&robot.description, "bh_palm", Path::new("x")).unwrap();
+        for bad in [
+            "preshape_rad = 2.5",
+            "preshape_rad = [0.0, -0.1, 0.0]",
+            "preshape_rad = nan",
+        ] {
+            let err = parse(&text(bad))
+                .unwrap()
+                .check(Category::Hammer, &dir, &hand)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("h/use") && err.contains("preshape_rad"),
+                "{bad}: {err}"
+            );
+        }
+        parse(&text("preshape_rad = 1.2"))
+            .unwrap()
+            .check(Category::Hammer, &dir, &hand)
+            .unwrap();
     }
 }

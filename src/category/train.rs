@@ -106,7 +106,7 @@ fn evaluate_all(
                 hand,
                 &models[g.model].2,
                 &g.pose,
-                g.spread_rad,
+                &g.preshape_rad.at_spread(g.spread_rad),
                 &options.simulation,
                 &params,
                 true,
@@ -180,7 +180,7 @@ pub fn train(
     }
     // Each pose exactly as the database stores it (and a planner reads it back),
     // so that q is what the stored pose gives, to the last bit.
-    let mut grasps = teach.check(category, models_dir, hand.spread_limits_rad)?;
+    let mut grasps = teach.check(category, models_dir, hand)?;
     let stored: Vec<PoseJson> = grasps.iter().map(|g| PoseJson::from(&g.pose)).collect();
     for (g, json) in grasps.iter_mut().zip(&stored) {
         g.pose = json.to_pose(&g.name).map_err(|e| CategoryError::Grasp {
@@ -202,7 +202,7 @@ pub fn train(
                 hand,
                 &models[g.model].2,
                 &g.params,
-                g.spread_rad,
+                &g.preshape_rad.at_spread(g.spread_rad),
                 &options.simulation,
                 &params,
                 &options.stability,
@@ -279,6 +279,7 @@ pub fn train(
             task: g.task.clone(),
             pose,
             spread_rad: g.spread_rad,
+            preshape_rad: g.preshape_rad,
             q: e.q,
             volume: e.volume,
             contacts: e.contacts,

@@ -99,6 +99,7 @@ pub fn execution_request(plan: &GraspPlan) -> Result<ExecutionRequest, CellError
         joints_rad: plan.joints_rad,
         pregrasp_joints_rad: plan.pregrasp_joints_rad,
         spread_rad: plan.spread_rad,
+        preshape_rad: crate::robot::PreshapeRad(plan.preshape_rad),
         task: None,
         method: Some(plan.method()?.to_string()),
     };
@@ -316,6 +317,7 @@ mod tests {
                 pose: palm,
                 pregrasp_pose: pregrasp,
                 spread_rad,
+                preshape_rad: crate::robot::PreshapeRad::OPEN,
                 joints: Some(joints),
                 pregrasp_joints: Some([0.1; 7]),
                 reachable: true,

@@ -320,6 +320,7 @@ impl Logger {
         Ok(Attempt::Executed {
             base_from_palm,
             spread_rad: plan.spread_rad,
+            preshape_rad: crate::robot::PreshapeRad(plan.preshape_rad),
             best_fit: best_fit(trial.fits.as_ref()),
         })
     }
@@ -375,6 +376,7 @@ impl Logger {
                     (
                         Attempt::Executed {
                             spread_rad,
+                            preshape_rad,
                             best_fit,
                             ..
                         },
@@ -383,6 +385,7 @@ impl Logger {
                     ) => Attempt::Executed {
                         base_from_palm: self.robot.arm().palm(&lab.executed_joints(&q)),
                         spread_rad,
+                        preshape_rad,
                         best_fit,
                     },
                     (attempt, _, _) => attempt,

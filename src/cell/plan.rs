@@ -27,7 +27,7 @@ use crate::plan::{
 };
 use crate::robot::hand::HandModel;
 use crate::robot::kinematics::ArmJoints;
-use crate::robot::{HandPose, Robot};
+use crate::robot::Robot;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -239,10 +239,7 @@ pub fn executable_joints(
     grasp: &mut PlannedGrasp,
     current: &ArmJoints,
 ) -> Result<(), PlanFailure> {
-    let hand = HandPose {
-        spread_rad: grasp.spread_rad,
-        flex_rad: [0.0; 3],
-    };
+    let hand = grasp.preshape_rad.at_spread(grasp.spread_rad);
     let mut seeds = vec![*current];
     seeds.extend(grasp.pregrasp_joints);
     let mut first_refusal = None;
@@ -262,6 +259,7 @@ pub fn executable_joints(
             joints_rad: at.joints,
             pregrasp_joints_rad: pre.joints,
             spread_rad: grasp.spread_rad,
+            preshape_rad: grasp.preshape_rad,
             task: None,
             method: None,
         };
@@ -413,6 +411,7 @@ mod tests {
             pose,
             pregrasp_pose: nalgebra::Translation3::new(0.0, 0.0, 0.1) * pose,
             spread_rad: 0.0,
+            preshape_rad: crate::robot::PreshapeRad::OPEN,
             joints: None,
             pregrasp_joints: None,
             reachable: true,
@@ -445,6 +444,7 @@ mod tests {
             joints_rad: far_grasp.joints,
             pregrasp_joints_rad: far.joints,
             spread_rad: 0.0,
+            preshape_rad: crate::robot::PreshapeRad::OPEN,
             task: None,
             method: None,
         };
@@ -459,6 +459,7 @@ mod tests {
             joints_rad: grasp.joints.unwrap(),
             pregrasp_joints_rad: grasp.pregrasp_joints.unwrap(),
             spread_rad: 0.0,
+            preshape_rad: crate::robot::PreshapeRad::OPEN,
             task: None,
             method: None,
         };

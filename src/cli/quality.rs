@@ -12,6 +12,7 @@ use crate::quality::autograsp::{
 use crate::quality::stability::{stability_range, StabilityOptions, StabilityRange};
 use crate::quality::{self, Contact, GraspQuality, QualityParams};
 use crate::robot::hand::HandModel;
+use crate::robot::HandPose;
 use crate::sim::physics::{lift_test, LiftOutcome, LiftScene, PhysicsObject, PhysicsOptions};
 use anyhow::Context;
 use clap::Args;
@@ -44,6 +45,17 @@ pub struct QualityArgs {
         allow_hyphen_values = true
     )]
     pub spread: f64,
+    /// Pre-shape: each finger's flex before the approach and the closing (rad), one
+    /// value for F1, F2 and F3 or three (F1,F2,F3); 0 is the open hand (default).
+    /// The BH8-282 positions each finger's puck, so each may differ. A flat tool
+    /// on a table needs the fingers partly closed, or they meet the table first.
+    #[arg(
+        long,
+        requires = "object",
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
+    pub preshape_rad: Option<Vec<f64>>,
     /// Height of a table top in the object's frame (m): the table becomes an obstacle.
     #[arg(long, requires = "object", allow_hyphen_values = true)]
     pub table_z: Option<f64>,
@@ -111,6 +123,24 @@ impl ContactsFile {
     }
 }
 
+/// The hand's pre-shape from `--spread` and `--preshape-rad` (none: open; one
+/// value: every finger; three: F1, F2, F3).
+fn preshape_of(spread_rad: f64, flex: Option<&[f64]>) -> anyhow::Result<HandPose> {
+    let flex_rad = match flex {
+        None => [0.0; 3],
+        Some(&[all]) => [all; 3],
+        Some(&[f1, f2, f3]) => [f1, f2, f3],
+        Some(other) => anyhow::bail!(
+            "--preshape-rad takes one flex for every finger or three (F1,F2,F3), not {}",
+            other.len()
+        ),
+    };
+    Ok(HandPose {
+        spread_rad,
+        flex_rad,
+    })
+}
+
 /// Runs `cell quality`.
 pub fn run(config: &Path, args: QualityArgs) -> anyhow::Result<ExitCode> {
     if let Some(object) = &args.object {
@@ -176,6 +206,7 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
         mu: args.mu,
         ..QualityParams::default()
     };
+    let preshape = preshape_of(args.spread, args.preshape_rad.as_deref())?;
     let approach = if args.approach_to_contact {
         GraspApproach::ToContact(ApproachOptions::from_cell(&config))
     } else {
@@ -186,7 +217,7 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
         &grasp_object,
         &ApproachedGrasp {
             object_from_palm: pose,
-            spread_rad: args.spread,
+            preshape,
             approach,
         },
         &options,
@@ -199,7 +230,7 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
             &hand,
             &grasp_object,
             &params_from_pose(&pose),
-            args.spread,
+            &preshape,
             &options,
             &params,
             &StabilityOptions::default(),
@@ -216,7 +247,7 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
         let scene = LiftScene {
             base_from_object: crate::geometry::Pose::identity(),
             base_from_palm: pose,
-            spread_rad: args.spread,
+            preshape,
             table_height_m: args.table_z,
         };
         Some(

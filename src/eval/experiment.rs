@@ -635,7 +635,7 @@ impl TaskRuns<'_> {
             self.setup.hand,
             &self.test,
             &grasp.pose,
-            grasp.spread_rad,
+            &grasp.preshape_rad.at_spread(grasp.spread_rad),
             &self.sim,
         )
         .map_err(|source| EvalError::Simulation {

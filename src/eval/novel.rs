@@ -36,7 +36,7 @@ use crate::quality::approach::{approach_to_contact, ApproachOptions};
 use crate::quality::autograsp::{open_hand_collision, GraspObject};
 use crate::register::{ModelSet, RegisterParams};
 use crate::robot::hand::HandModel;
-use crate::robot::Robot;
+use crate::robot::{HandPose, Robot};
 use crate::sim::camera::DepthCamera;
 use crate::sim::lab::{LabDraw, LabErrors};
 use crate::sim::observer::{Agreement, Attempt, Observation, Observer};
@@ -448,14 +448,14 @@ pub fn executed_palm(
     object: &GraspObject,
     base_from_object: &Pose,
     reached: &Pose,
-    spread_rad: f64,
+    preshape: &HandPose,
     approach: Option<&ApproachOptions>,
 ) -> Pose {
     let Some(options) = approach else {
         return *reached;
     };
     let object_from_palm = base_from_object.inverse() * reached;
-    match approach_to_contact(hand, object, &object_from_palm, spread_rad, options) {
+    match approach_to_contact(hand, object, &object_from_palm, preshape, options) {
         Ok(stop) if stop.start_collision.is_none() => base_from_object * stop.object_from_palm,
         _ => *reached,
     }
@@ -792,10 +792,15 @@ impl<'a> NovelRun<'a> {
                 &attempt,
             )
             .map_err(|e| object.fail(e.to_string()))?;
-        let collision = palm.is_some_and(|(p, spread)| {
+        let collision = palm.is_some_and(|(p, preshape)| {
             let object_from_palm = placed.base_from_object.inverse() * p;
-            open_hand_collision(cell.hand, &placed.grasp_object, &object_from_palm, spread)
-                .is_some()
+            open_hand_collision(
+                cell.hand,
+                &placed.grasp_object,
+                &object_from_palm,
+                &preshape,
+            )
+            .is_some()
         });
         Ok(NovelTrial {
             object: object.name.clone(),
@@ -816,7 +821,7 @@ impl<'a> NovelRun<'a> {
             task_in_reach: in_reach,
             note: seen.note,
             palm: palm.map(|(p, _)| PoseJson::from(&p)),
-            spread_rad: palm.map(|(_, spread)| spread),
+            spread_rad: palm.map(|(_, hand)| hand.spread_rad),
             best_fit_offset_mm: placed.best_fit_offset_mm,
             plan_ms,
         })
@@ -857,8 +862,12 @@ impl<'a> NovelRun<'a> {
 
     /// Step 4, execution of `grasp` on `placed`: its joints plus the lab's errors,
     /// then the approach (if any). The attempt for the observer, and the palm pose
-    /// and spread where the hand closed.
-    fn execute(&self, placed: &Placed, grasp: &PlannedGrasp) -> (Attempt, Option<(Pose, f64)>) {
+    /// and pre-shape (at the spread) where the hand closed.
+    fn execute(
+        &self,
+        placed: &Placed,
+        grasp: &PlannedGrasp,
+    ) -> (Attempt, Option<(Pose, HandPose)>) {
         let reached = match grasp.joints {
             Some(q) => self.cell.robot.arm().palm(&placed.lab.executed_joints(&q)),
             None => grasp.pose,
@@ -868,16 +877,17 @@ impl<'a> NovelRun<'a> {
             &placed.grasp_object,
             &placed.base_from_object,
             &reached,
-            grasp.spread_rad,
+            &grasp.preshape_rad.at_spread(grasp.spread_rad),
             self.approach.as_ref(),
         );
         (
             Attempt::Executed {
                 base_from_palm: palm,
                 spread_rad: grasp.spread_rad,
+                preshape_rad: grasp.preshape_rad,
                 best_fit: placed.best_fit,
             },
-            Some((palm, grasp.spread_rad)),
+            Some((palm, grasp.preshape_rad.at_spread(grasp.spread_rad))),
         )
     }
 }

@@ -14,6 +14,7 @@ use crate::quality::autograsp::{
 };
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
+use crate::robot::HandPose;
 use serde::Serialize;
 
 /// The test object as the grasp simulator sees it.
@@ -84,22 +85,26 @@ pub struct SimulatedGrasp {
     pub contacts: usize,
 }
 
-/// Simulates the palm at `base_from_palm` with `spread_rad` on `test`.
+/// Simulates the palm at `base_from_palm` with the hand's `preshape` (spread and
+/// each finger's flex before closing) on `test`.
 pub fn simulate(
     hand: &HandModel,
     test: &TestObject,
     base_from_palm: &Pose,
-    spread_rad: f64,
+    preshape: &HandPose,
     setup: &SimSetup,
 ) -> Result<SimulatedGrasp, GraspSimError> {
     let object_from_palm = test.base_from_object.inverse() * base_from_palm;
     let (lo, hi) = hand.spread_limits_rad;
-    let spread_rad = spread_rad.clamp(lo, hi);
+    let preshape = HandPose {
+        spread_rad: preshape.spread_rad.clamp(lo, hi),
+        ..*preshape
+    };
     let Some(clear) = retreat_until_clear(
         hand,
         &test.object,
         &object_from_palm,
-        spread_rad,
+        &preshape,
         setup.max_retreat_m,
     ) else {
         return Ok(SimulatedGrasp {
@@ -114,7 +119,7 @@ pub fn simulate(
         hand,
         &test.object,
         &clear,
-        spread_rad,
+        &preshape,
         &setup.closing,
         &setup.metric,
         false,
@@ -164,7 +169,7 @@ mod tests {
             &hand,
             &test,
             &inside,
-            grasp.spread_rad,
+            &grasp.preshape(),
             &SimSetup::paper(closing, metric),
         )
         .unwrap();
@@ -175,7 +180,7 @@ mod tests {
             &hand,
             &test,
             &inside,
-            grasp.spread_rad,
+            &grasp.preshape(),
             &SimSetup::cell(closing, metric, 0.05),
         )
         .unwrap();
@@ -187,7 +192,7 @@ mod tests {
             &hand,
             &test,
             &(base_from_object * model_from_palm),
-            grasp.spread_rad,
+            &grasp.preshape(),
             &SimSetup::paper(closing, metric),
         )
         .unwrap();

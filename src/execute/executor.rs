@@ -707,6 +707,7 @@ mod tests {
             joints_rad: grasp.joints,
             pregrasp_joints_rad: pre.joints,
             spread_rad: 0.3,
+            preshape_rad: crate::robot::PreshapeRad::OPEN,
             task: None,
             method: None,
         }
@@ -1308,6 +1309,7 @@ mod tests {
                     joints_rad: numbers,
                     pregrasp_joints_rad: joints,
                     spread_rad: spread,
+                    preshape_rad: crate::robot::PreshapeRad::OPEN,
                     task: None,
                     method: None,
                 },
@@ -1325,6 +1327,7 @@ mod tests {
                         joints_rad: solve(&palm, &pre),
                         pregrasp_joints_rad: pre,
                         spread_rad: spread.clamp(0.0, PI),
+                        preshape_rad: crate::robot::PreshapeRad::OPEN,
                         task: None,
                         method: None,
                     }
@@ -1346,6 +1349,7 @@ mod tests {
                         joints_rad: grasp,
                         pregrasp_joints_rad: pre,
                         spread_rad: 0.3,
+                        preshape_rad: crate::robot::PreshapeRad::OPEN,
                         task: None,
                         method: None,
                     }

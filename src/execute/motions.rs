@@ -23,7 +23,8 @@ use nalgebra::Translation3;
 pub struct GraspMotions {
     /// The checked request.
     pub request: ValidRequest,
-    /// The hand's shape while approaching (open, at the plan's spread).
+    /// The hand's shape while approaching (the plan's spread and pre-shape; open
+    /// unless the plan names a pre-shape).
     pub preshape: HandPose,
     /// The move from the current joints to the pre-grasp joints.
     pub pregrasp_move: MotionReport,
@@ -122,10 +123,7 @@ pub fn validate_grasp(
     const PHASE: Phase = Phase::Validate;
     let robot = check.robot();
     let request = request.validate()?;
-    let preshape = HandPose {
-        spread_rad: request.spread_rad,
-        flex_rad: [0.0; 3],
-    };
+    let preshape = request.preshape_rad.at_spread(request.spread_rad);
     let pregrasp_move = checked_motion(
         check,
         config.palm_speed_m_s,

@@ -3,6 +3,7 @@
 use crate::geometry::{check_finite, Pose, PoseJson};
 use crate::hw::fri::JOINTS;
 use crate::plan::PlannedGrasp;
+use crate::robot::PreshapeRad;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 use std::path::Path;
@@ -57,6 +58,10 @@ pub struct ExecutionRequest {
     pub pregrasp_joints_rad: [f64; JOINTS],
     /// Spread of F1 and F2 (0 to pi rad) to pre-shape before the approach.
     pub spread_rad: f64,
+    /// Each finger's flex before the approach (rad): one number or three (F1, F2,
+    /// F3); open (absent) by default.
+    #[serde(default, skip_serializing_if = "PreshapeRad::is_open")]
+    pub preshape_rad: PreshapeRad,
     /// The task the grasp was planned for.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub task: Option<String>,
@@ -78,6 +83,8 @@ pub struct ValidRequest {
     pub pregrasp_joints_rad: [f64; JOINTS],
     /// Spread (rad).
     pub spread_rad: f64,
+    /// Each finger's flex before the approach (rad).
+    pub preshape_rad: PreshapeRad,
 }
 
 impl ExecutionRequest {
@@ -102,6 +109,7 @@ impl ExecutionRequest {
                 .pregrasp_joints
                 .ok_or_else(|| missing("pregrasp_joints_rad"))?,
             spread_rad: grasp.spread_rad,
+            preshape_rad: grasp.preshape_rad,
             task: Some(task.to_string()),
             method: Some(method.to_string()),
         })
@@ -140,12 +148,16 @@ impl ExecutionRequest {
                 format!("{} rad is outside 0..=pi", self.spread_rad),
             ));
         }
+        if let Some(problem) = self.preshape_rad.problem(crate::robot::FLEX_LIMITS_RAD) {
+            return Err(invalid("preshape_rad", problem));
+        }
         Ok(ValidRequest {
             palm,
             pregrasp,
             joints_rad: self.joints_rad,
             pregrasp_joints_rad: self.pregrasp_joints_rad,
             spread_rad: self.spread_rad,
+            preshape_rad: self.preshape_rad,
         })
     }
 }
@@ -169,6 +181,7 @@ mod tests {
             joints_rad: [0.0, -1.0, 0.0, 1.4, 0.0, -0.74, 0.0],
             pregrasp_joints_rad: [0.0, -0.83, 0.0, 1.41, 0.0, -0.9, 0.0],
             spread_rad: 0.5,
+            preshape_rad: crate::robot::PreshapeRad::OPEN,
             task: Some("top".into()),
             method: None,
         }
@@ -193,5 +206,27 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("sprd"), "{err}");
+    }
+
+    #[test]
+    fn a_preshape_is_optional_and_checked() {
+        let r = request();
+        let text = serde_json::to_string(&r).unwrap();
+        // An open hand writes no pre-shape: plan files stay as they were.
+        assert!(!text.contains("preshape_rad"), "{text}");
+        let with = text.replace(
+            "\"spread_rad\":0.5",
+            "\"spread_rad\":0.5,\"preshape_rad\":1.2",
+        );
+        let parsed: ExecutionRequest = serde_json::from_str(&with).unwrap();
+        assert_eq!(parsed.preshape_rad, PreshapeRad([1.2; 3]));
+        assert_eq!(
+            parsed.validate().unwrap().preshape_rad,
+            PreshapeRad([1.2; 3])
+        );
+        let mut bad = r.clone();
+        bad.preshape_rad = PreshapeRad([0.0, 0.0, 2.6]);
+        let err = bad.validate().unwrap_err().to_string();
+        assert!(err.contains("preshape_rad") && err.contains("F3"), "{err}");
     }
 }

@@ -854,6 +854,9 @@ pub struct GraspPlan {
     method: Name,
     /// Hand spread of the grasp (rad).
     pub spread_rad: f64,
+    /// Pre-shape of the grasp: each finger's flex (F1, F2, F3) before the approach
+    /// (rad); zero is the open hand.
+    pub preshape_rad: [f64; 3],
 }
 message!(GraspPlan, Topic::GraspPlan);
 
@@ -884,6 +887,7 @@ impl GraspPlan {
             failure: FailureCause::None.code(),
             method: Name::new("grasp plan method", method)?,
             spread_rad: grasp.spread_rad,
+            preshape_rad: grasp.preshape_rad.0,
         })
     }
 
@@ -1470,6 +1474,7 @@ mod tests {
             pose,
             pregrasp_pose: pose_from_params(&[0.6, 0.0, 0.3, 3.1, 0.0, 0.0]),
             spread_rad: 0.4,
+            preshape_rad: crate::robot::PreshapeRad::OPEN,
             joints: Some([0.1; ARM_JOINTS]),
             pregrasp_joints: Some([0.2; ARM_JOINTS]),
             reachable: true,
@@ -1482,7 +1487,24 @@ mod tests {
             crate::geometry::pose_error(&plan.base_from_palm.to_pose("palm").unwrap(), &pose);
         assert!(dp < 1e-12 && dr < 1e-12, "{dp} {dr}");
         assert_eq!((plan.joints_rad, plan.spread_rad), ([0.1; ARM_JOINTS], 0.4));
+        assert_eq!(plan.preshape_rad, [0.0; 3]);
         assert!(plan.reachable().unwrap());
+        // A pre-shape goes over the wire, field for field, and back into the
+        // executor's request.
+        grasp.preshape_rad = crate::robot::PreshapeRad([1.2, 1.1, 1.3]);
+        let plan = GraspPlan::new(3, 4, &grasp, "laplace").unwrap();
+        assert_eq!(plan.preshape_rad, [1.2, 1.1, 1.3]);
+        // Appended after the spread: the fields before it keep their offsets.
+        assert_eq!(
+            std::mem::offset_of!(GraspPlan, preshape_rad),
+            std::mem::offset_of!(GraspPlan, spread_rad) + 8
+        );
+        assert_eq!(
+            std::mem::offset_of!(GraspPlan, preshape_rad) + 24,
+            size_of::<GraspPlan>()
+        );
+        let request = crate::cell::execute::execution_request(&plan).unwrap();
+        assert_eq!(request.preshape_rad, grasp.preshape_rad);
         assert_eq!(plan.failure().unwrap(), FailureCause::None);
         grasp.pregrasp_joints = None;
         let err = GraspPlan::new(3, 4, &grasp, "laplace").unwrap_err();
@@ -1573,7 +1595,7 @@ mod tests {
         // The fits, then the seen surface (12-byte points; 8-byte alignment).
         assert_eq!(size_of::<Fits>(), 24 + 32 * 160 + MAX_SEEN_POINTS * 12);
         assert_eq!(size_of::<JointState>(), 11 * 8);
-        assert_eq!(size_of::<GraspPlan>(), 16 + 256 + 112 + 8 + 8 + 32 + 8);
+        assert_eq!(size_of::<GraspPlan>(), 16 + 256 + 112 + 8 + 8 + 32 + 8 + 24);
         // The header's stamp sits at byte 8 (the socket benchmark relies on it).
         assert_eq!(std::mem::offset_of!(CloudHeader, stamp_ns), 8);
     }

@@ -56,6 +56,7 @@ pub fn example_grasps(
                 task: g.task.clone(),
                 model_from_palm: g.params(),
                 spread_rad: g.spread_rad,
+                preshape_rad: g.preshape_rad,
                 q: g.q,
                 sigma: g.sigma,
             })

@@ -391,6 +391,7 @@ pub fn grasps_from_json(
             task: g.task.clone(),
             model_from_palm: params_from_pose(&pose),
             spread_rad: g.spread_rad,
+            preshape_rad: crate::robot::PreshapeRad::OPEN,
             q: g.q,
             sigma: g.sigma_m_rad,
         });

@@ -41,6 +41,7 @@ pub use seen::{SeenSurface, SeenSurfaceOptions};
 pub use weights::{FitWeight, Weights};
 
 use crate::geometry::{Pose, PoseParams};
+use crate::robot::PreshapeRad;
 use std::path::PathBuf;
 
 /// One training model registered to the target cloud.
@@ -69,6 +70,8 @@ pub struct ExampleGrasp {
     pub model_from_palm: PoseParams,
     /// Hand spread of the grasp (rad).
     pub spread_rad: f64,
+    /// Its pre-shape: each finger's flex before the approach (rad; open for most).
+    pub preshape_rad: PreshapeRad,
     /// Grasp quality `q_ik >= 0` (Ferrari–Canny epsilon; 0 = not force closure).
     pub q: f64,
     /// Per-DOF standard deviations `Delta_d / 3` (m, m, m, rad, rad, rad): along the
@@ -170,6 +173,7 @@ pub(crate) mod test_support {
             task: task.to_string(),
             model_from_palm: theta,
             spread_rad: 0.1 * model as f64,
+            preshape_rad: PreshapeRad::OPEN,
             q,
             sigma: [0.01, 0.012, 0.008, 0.15, 0.12, 0.2],
         }

@@ -58,7 +58,7 @@ use crate::config::CellConfig;
 use crate::geometry::{pose_error, pose_from_params, rotation_about, Pose, PoseJson};
 use crate::robot::ik::IkSolution;
 use crate::robot::kinematics::ArmJoints;
-use crate::robot::{HandPose, UnreachableReason};
+use crate::robot::{HandPose, PreshapeRad, UnreachableReason};
 use nalgebra::Translation3;
 use rayon::prelude::*;
 use serde::{Serialize, Serializer};
@@ -199,6 +199,11 @@ pub struct PlannedGrasp {
     pub pregrasp_pose: Pose,
     /// Hand spread (rad).
     pub spread_rad: f64,
+    /// The pre-shape (each finger's flex before the approach, rad) of the model
+    /// grasp the plan came from (the dominant one); open for most grasps, and then
+    /// left out of the JSON.
+    #[serde(skip_serializing_if = "PreshapeRad::is_open")]
+    pub preshape_rad: PreshapeRad,
     /// Arm joints at the grasp, when reachable.
     pub joints: Option<ArmJoints>,
     /// Arm joints at the pre-grasp, when reachable.
@@ -540,13 +545,15 @@ impl Problem<'_> {
     }
 
     fn planned(&self, pose: Pose, feasible: Result<Option<Feasible>, Infeasible>) -> PlannedGrasp {
-        self.planned_at(pose, self.spread_at(&pose), feasible)
+        let dominant = &self.grasps[self.objective.dominant_grasp(&pose)];
+        self.planned_at(pose, dominant.spread_rad, dominant.preshape_rad, feasible)
     }
 
     fn planned_at(
         &self,
         pose: Pose,
         spread_rad: f64,
+        preshape_rad: PreshapeRad,
         feasible: Result<Option<Feasible>, Infeasible>,
     ) -> PlannedGrasp {
         let log_objective = self.objective.log_value_at(&pose);
@@ -559,6 +566,7 @@ impl Problem<'_> {
             pose,
             pregrasp_pose: pregrasp_pose(&pose, self.options.pregrasp_offset_m),
             spread_rad,
+            preshape_rad,
             joints,
             pregrasp_joints,
             reachable,
@@ -947,14 +955,19 @@ fn best_single(
     let mut unrepaired = None;
     let mut constrained_runs = 0;
     let planned = match checker {
-        None => problem.planned_at(pose, grasp.spread_rad, Ok(None)),
+        None => problem.planned_at(pose, grasp.spread_rad, grasp.preshape_rad, Ok(None)),
         Some(c) => match c.check(&pose, grasp.spread_rad, &[], &[], false) {
-            Ok(f) => problem.planned_at(pose, grasp.spread_rad, Ok(Some(f))),
+            Ok(f) => problem.planned_at(pose, grasp.spread_rad, grasp.preshape_rad, Ok(Some(f))),
             Err(why) if !(problem.options.repair && problem.options.repair_best_single) => {
-                problem.planned_at(pose, grasp.spread_rad, Err(why))
+                problem.planned_at(pose, grasp.spread_rad, grasp.preshape_rad, Err(why))
             }
             Err(why) => {
-                let top = problem.planned_at(pose, grasp.spread_rad, Err(why.clone()));
+                let top = problem.planned_at(
+                    pose,
+                    grasp.spread_rad,
+                    grasp.preshape_rad,
+                    Err(why.clone()),
+                );
                 unrepaired = Some(UnconstrainedOptimum {
                     pose,
                     objective: top.objective,

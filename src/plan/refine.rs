@@ -153,13 +153,13 @@ pub fn simulated_epsilon(
     hand: &HandModel,
     object: &GraspObject,
     object_from_palm: &Pose,
-    spread_rad: f64,
+    preshape: &HandPose,
     options: &SimRefineOptions,
 ) -> f64 {
     let closes_at = match &options.approach {
         None => *object_from_palm,
         Some(approach) => {
-            match approach_to_contact(hand, object, object_from_palm, spread_rad, approach) {
+            match approach_to_contact(hand, object, object_from_palm, preshape, approach) {
                 Ok(stop) if stop.start_collision.is_none() => stop.object_from_palm,
                 _ => return 0.0,
             }
@@ -169,7 +169,7 @@ pub fn simulated_epsilon(
         hand,
         object,
         &closes_at,
-        spread_rad,
+        preshape,
         &options.autograsp,
         &options.quality,
         false,
@@ -180,12 +180,13 @@ pub fn simulated_epsilon(
 }
 
 /// The fit-weighted mean simulated epsilon of the palm pose `palm` (world) with
-/// `spread_rad` over `models` (in parallel over the models).
+/// the hand's `preshape` (spread and flex) over `models` (in parallel over the
+/// models).
 pub fn mean_epsilon(
     hand: &HandModel,
     models: &[SimModel],
     palm: &Pose,
-    spread_rad: f64,
+    preshape: &HandPose,
     options: &SimRefineOptions,
 ) -> f64 {
     let (sum, weight) = models
@@ -193,7 +194,7 @@ pub fn mean_epsilon(
         .map(|m| {
             let local = m.base_from_model.inverse() * palm;
             (
-                m.weight * simulated_epsilon(hand, m.object, &local, spread_rad, options),
+                m.weight * simulated_epsilon(hand, m.object, &local, preshape, options),
                 m.weight,
             )
         })
@@ -250,7 +251,13 @@ pub fn refine_in_sim(
     }
     super::objective::check_value("sim refine depth_scan_m", options.depth_scan_m, false)?;
     let (lo, hi) = hand.spread_limits_rad;
-    let start_eps = mean_epsilon(hand, models, &start.pose, start.spread_rad, options);
+    let start_eps = mean_epsilon(
+        hand,
+        models,
+        &start.pose,
+        &start.preshape_rad.at_spread(start.spread_rad),
+        options,
+    );
     let mut best = (start.clone(), start_eps);
     let mut x = [0.0; 5];
     let first = [
@@ -269,7 +276,16 @@ pub fn refine_in_sim(
         .map(|k| {
             let y = [0.0, 0.0, f64::from(k) * options.step_m, 0.0, 0.0];
             let (pose, spread) = moved(&start.pose, start.spread_rad, &y);
-            (y, mean_epsilon(hand, models, &pose, spread, options))
+            (
+                y,
+                mean_epsilon(
+                    hand,
+                    models,
+                    &pose,
+                    &start.preshape_rad.at_spread(spread),
+                    options,
+                ),
+            )
         })
         .collect();
     evaluations += scanned.len();
@@ -307,7 +323,13 @@ pub fn refine_in_sim(
                     continue;
                 }
                 evaluations += 1;
-                let eps = mean_epsilon(hand, models, &pose, spread, options);
+                let eps = mean_epsilon(
+                    hand,
+                    models,
+                    &pose,
+                    &start.preshape_rad.at_spread(spread),
+                    options,
+                );
                 if eps <= best.1 + 1e-12 {
                     continue;
                 }
@@ -456,6 +478,7 @@ fn feasible(
         pose,
         pregrasp_pose: pregrasp,
         spread_rad,
+        preshape_rad: near.preshape_rad,
         joints,
         pregrasp_joints,
         reachable: reach.is_some(),
@@ -539,7 +562,13 @@ mod tests {
                 r.start_mean_epsilon, r.mean_epsilon, r.evaluations, r.infeasible
             );
             assert!(r.mean_epsilon >= r.start_mean_epsilon);
-            let again = mean_epsilon(&hand, &models, &r.grasp.pose, r.grasp.spread_rad, &refine);
+            let again = mean_epsilon(
+                &hand,
+                &models,
+                &r.grasp.pose,
+                &r.grasp.preshape_rad.at_spread(r.grasp.spread_rad),
+                &refine,
+            );
             assert!((again - r.mean_epsilon).abs() < 1e-12);
             assert!(r.grasp.reachable && r.evaluations <= 10);
         }

@@ -68,6 +68,7 @@ pub fn synthetic_problem(spec: &SyntheticSpec) -> (Vec<ModelFit>, Vec<ExampleGra
                 task: "top".into(),
                 model_from_palm: theta,
                 spread_rad: rng.gen_range(0.0..PI / 2.0),
+                preshape_rad: crate::robot::PreshapeRad::OPEN,
                 q: rng.gen_range(0.02..0.3),
                 sigma: sigma(&mut rng),
             });
@@ -77,6 +78,7 @@ pub fn synthetic_problem(spec: &SyntheticSpec) -> (Vec<ModelFit>, Vec<ExampleGra
             task: "side".into(),
             model_from_palm: [0.0, 0.09, 0.06, PI / 2.0, 0.0, 0.0],
             spread_rad: 0.0,
+            preshape_rad: crate::robot::PreshapeRad::OPEN,
             q: rng.gen_range(0.02..0.3),
             sigma: sigma(&mut rng),
         });

@@ -1,4 +1,5 @@
-//! Approach to contact, as GraspIt! and the executor do it: the open hand starts
+//! Approach to contact, as GraspIt! and the executor do it: the hand, open or in
+//! the grasp's pre-shape (fingers partly closed, for a flat tool on a table), starts
 //! at the pre-grasp, `pregrasp_m` back from the planned palm pose along the palm's
 //! -z, and moves along +z (the approach axis) through the planned pose, at most
 //! `max_overtravel_m` beyond it; it stops just short of the first contact of any
@@ -20,6 +21,7 @@ use super::autograsp::{
 use crate::config::CellConfig;
 use crate::geometry::Pose;
 use crate::robot::hand::HandModel;
+use crate::robot::HandPose;
 use serde::Serialize;
 
 /// Step of the search near obstacles (m).
@@ -104,18 +106,20 @@ fn serialize_pose<S: serde::Serializer>(pose: &Pose, s: S) -> Result<S::Ok, S::E
 }
 
 /// Approaches `object_from_palm` (the planned palm pose, object frame) to
-/// contact with the open hand at `spread_rad`; see the module documentation.
+/// contact with the hand in `preshape` ([`HandPose::open`]: the open hand at a
+/// spread); see the module documentation.
 pub fn approach_to_contact(
     hand: &HandModel,
     object: &GraspObject,
     object_from_palm: &Pose,
-    spread_rad: f64,
+    preshape: &HandPose,
     options: &ApproachOptions,
 ) -> Result<ApproachStop, GraspSimError> {
     options.validate()?;
+    super::autograsp::validate_preshape(hand, preshape)?;
     let pregrasp = options.pregrasp(object_from_palm);
     let at = |travel: f64| pregrasp * Pose::translation(0.0, 0.0, travel);
-    let collision = |travel: f64| open_hand_collision(hand, object, &at(travel), spread_rad);
+    let collision = |travel: f64| open_hand_collision(hand, object, &at(travel), preshape);
     let stop = |travel: f64, contact| ApproachStop {
         object_from_palm: at(travel),
         travel_m: travel,
@@ -132,7 +136,7 @@ pub fn approach_to_contact(
     let end = options.pregrasp_m + options.max_overtravel_m;
     let mut free = 0.0;
     while free < end {
-        if open_hand_clear_by(hand, object, &at(free), spread_rad, FREE_MARGIN_M) {
+        if open_hand_clear_by(hand, object, &at(free), preshape, FREE_MARGIN_M) {
             free = (free + FREE_MARGIN_M).min(end);
             continue;
         }
@@ -207,7 +211,14 @@ mod tests {
         )
         .unwrap();
         let options = ApproachOptions::default();
-        let stop = approach_to_contact(&hand, &block, &Pose::identity(), spread, &options).unwrap();
+        let stop = approach_to_contact(
+            &hand,
+            &block,
+            &Pose::identity(),
+            &HandPose::open(spread),
+            &options,
+        )
+        .unwrap();
         assert_eq!(stop.start_collision, None);
         let contact = stop.contact.as_ref().expect("touches the block");
         assert_eq!(contact.with, Obstacle::Object);
@@ -227,7 +238,14 @@ mod tests {
             Path::new("far block"),
         )
         .unwrap();
-        let stop = approach_to_contact(&hand, &far, &Pose::identity(), spread, &options).unwrap();
+        let stop = approach_to_contact(
+            &hand,
+            &far,
+            &Pose::identity(),
+            &HandPose::open(spread),
+            &options,
+        )
+        .unwrap();
         assert_eq!(stop.contact, None);
         assert!((stop.beyond_plan_m - 0.05).abs() < 1e-12, "{stop:?}");
 
@@ -237,7 +255,14 @@ mod tests {
             Path::new("near block"),
         )
         .unwrap();
-        let stop = approach_to_contact(&hand, &near, &Pose::identity(), spread, &options).unwrap();
+        let stop = approach_to_contact(
+            &hand,
+            &near,
+            &Pose::identity(),
+            &HandPose::open(spread),
+            &options,
+        )
+        .unwrap();
         assert!((stop.beyond_plan_m + 0.040).abs() < 1e-4, "{stop:?}");
 
         // A table across the path stops it too.
@@ -253,7 +278,9 @@ mod tests {
             nalgebra::Translation3::identity(),
             nalgebra::UnitQuaternion::from_euler_angles(std::f64::consts::PI, 0.0, 0.0),
         );
-        let stop = approach_to_contact(&hand, &over_table, &down, spread, &options).unwrap();
+        let stop =
+            approach_to_contact(&hand, &over_table, &down, &HandPose::open(spread), &options)
+                .unwrap();
         assert_eq!(
             stop.contact.as_ref().unwrap().with,
             Obstacle::Table,
@@ -282,7 +309,7 @@ mod tests {
             &obj,
             &ApproachedGrasp {
                 object_from_palm: inside,
-                spread_rad: 0.0,
+                preshape: HandPose::open(0.0),
                 approach: GraspApproach::AtPose,
             },
             &opts,
@@ -297,7 +324,7 @@ mod tests {
             &obj,
             &ApproachedGrasp {
                 object_from_palm: inside,
-                spread_rad: 0.0,
+                preshape: HandPose::open(0.0),
                 approach: GraspApproach::ToContact(ApproachOptions::default()),
             },
             &opts,
@@ -318,7 +345,7 @@ mod tests {
             &obj,
             &ApproachedGrasp {
                 object_from_palm: deep,
-                spread_rad: 0.0,
+                preshape: HandPose::open(0.0),
                 approach: GraspApproach::ToContact(ApproachOptions::default()),
             },
             &opts,
@@ -338,5 +365,97 @@ mod tests {
         .unwrap_err()
         .to_string()
         .contains("pregrasp_m"));
+    }
+
+    #[test]
+    fn a_preshaped_hand_pinches_a_flat_box_on_the_table_where_the_open_hand_closes_on_the_table() {
+        let robot = shipped_robot();
+        let hand = hand_of(&robot);
+        // A bar 25 mm high and 25 mm wide lying on the table (z = 0), a top-down
+        // grasp across it: F3 on one side, F1 and F2 on the other.
+        let bar = GraspObject::new(
+            &cuboid([0.0, 0.0, 0.0125], [0.12, 0.025, 0.025]),
+            Path::new("bar"),
+        )
+        .unwrap()
+        .with_table(Some(0.0));
+        let down = |z: f64| {
+            Pose::from_parts(
+                nalgebra::Translation3::new(0.0, 0.0, z),
+                nalgebra::UnitQuaternion::from_euler_angles(std::f64::consts::PI, 0.0, 0.0),
+            )
+        };
+        let (opts, params) = (AutoGraspOptions::default(), QualityParams::default());
+        let grasp = |z: f64, preshape: HandPose| {
+            evaluate_approached_grasp(
+                &hand,
+                &bar,
+                &ApproachedGrasp {
+                    object_from_palm: down(z),
+                    preshape,
+                    approach: GraspApproach::ToContact(ApproachOptions::default()),
+                },
+                &opts,
+                &params,
+                false,
+            )
+            .unwrap()
+        };
+        // Open: the horizontal fingers meet the table with the palm 0.10 m up, then
+        // close into it.
+        let open = grasp(0.15, HandPose::open(0.0));
+        let stop = open.approach.as_ref().unwrap();
+        assert_eq!(
+            stop.contact.as_ref().unwrap().with,
+            Obstacle::Table,
+            "{stop:?}"
+        );
+        assert!(
+            open.outcome.contacts.is_empty() && open.epsilon == 0.0,
+            "{open:?}"
+        );
+        // Pre-shaped (every flex 1.15 rad, past the fingertips' lowest point): the
+        // tips meet the table outside the bar, then sweep inward and up onto its sides.
+        let preshape = HandPose {
+            spread_rad: 0.0,
+            flex_rad: [1.15; 3],
+        };
+        let pinch = grasp(0.2, preshape);
+        let stop = pinch.approach.as_ref().unwrap();
+        assert_eq!(stop.start_collision, None);
+        assert_eq!(
+            stop.contact.as_ref().unwrap().with,
+            Obstacle::Table,
+            "{stop:?}"
+        );
+        assert!(pinch.force_closure && pinch.epsilon > 0.0, "{pinch:?}");
+        for f in ["bh_f1", "bh_f2", "bh_f3"] {
+            assert!(
+                pinch.outcome.contacts.iter().any(|c| c.link.starts_with(f)),
+                "{f}"
+            );
+        }
+        for c in &pinch.outcome.contacts {
+            // On the bar's long sides, pushing across it.
+            assert!((c.point.y.abs() - 0.0125).abs() < 1e-3, "{c:?}");
+            assert!(c.normal.z.abs() < 0.1, "{c:?}");
+        }
+        // Closing started from the pre-shape, and the flexed fingers reach farther
+        // ahead of the palm than open ones: the palm stops higher.
+        assert!(pinch.outcome.hand.flex_rad.iter().all(|&f| f > 1.15));
+        let (z_open, z_pinch) = (
+            open.approach.unwrap().object_from_palm.translation.z,
+            stop.object_from_palm.translation.z,
+        );
+        assert!(z_pinch > z_open + 0.05, "{z_pinch} vs {z_open}");
+        // A flex outside the joint's range is refused, naming the finger.
+        let bad = HandPose {
+            spread_rad: 0.0,
+            flex_rad: [0.0, 3.0, 0.0],
+        };
+        let err = approach_to_contact(&hand, &bar, &down(0.2), &bad, &ApproachOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("F2") && err.contains('3'), "{err}");
     }
 }

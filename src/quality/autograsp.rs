@@ -1,7 +1,14 @@
 //! Auto-grasp of the BH8-282, as GraspIt!'s: the palm is placed at a pose relative
-//! to the object, the spread is set, and every finger closes from open.
+//! to the object, the spread is set, and every finger closes from its pre-shape.
 //!
-//! Each finger's flex joint advances from its lower limit in steps of
+//! The pre-shape ([`HandPose`]: the spread and each finger's flex before the hand
+//! closes) is the open hand ([`HandPose::open`], every flex at its lower limit) unless
+//! a grasp names one: a flat tool on a table needs its fingers partly closed before
+//! the approach, or the open fingers meet the table first. The BH8-282 positions each
+//! finger's puck on its own, so each finger has its own flex; its distal link is
+//! coupled (the hand reaches the pre-shape by moving freely).
+//!
+//! Each finger's flex joint advances from its pre-shape in steps of
 //! [`AutoGraspOptions::step_rad`] (the steps are short enough that a link, 21 mm thick
 //! in its direction of motion, cannot pass through a surface between two of them);
 //! when a link would intersect the object or the table, the angle is bisected down
@@ -11,7 +18,7 @@
 //! its limit; a distal link that is blocked first stops the whole finger. Fingers do
 //! not see each other (the object is fixed, so the order of closing does not matter).
 //!
-//! A hand that already intersects the object (or the table) in its open pre-shape,
+//! A hand that already intersects the object (or the table) in its pre-shape,
 //! or whose palm or links sit inside the closed object, is an invalid start and is
 //! reported as such. After closing, every link within
 //! [`AutoGraspOptions::contact_distance_m`] of the object contributes contacts: the
@@ -51,6 +58,18 @@ pub enum GraspSimError {
     Spread {
         /// The spread asked for (rad).
         spread_rad: f64,
+        /// Lower limit (rad).
+        lower_rad: f64,
+        /// Upper limit (rad).
+        upper_rad: f64,
+    },
+    /// A finger's pre-shape flex is outside the joint's range (or not finite).
+    #[error("pre-shape flex of finger F{finger} {flex_rad} rad is outside the joint range [{lower_rad}, {upper_rad}] rad")]
+    Preshape {
+        /// The finger, 1..3.
+        finger: usize,
+        /// The flex asked for (rad).
+        flex_rad: f64,
         /// Lower limit (rad).
         lower_rad: f64,
         /// Upper limit (rad).
@@ -353,16 +372,11 @@ impl GraspOutcome {
     }
 }
 
-/// Closes the hand at `object_from_palm` with `spread_rad` around `object`.
-pub fn close_hand(
-    hand: &HandModel,
-    object: &GraspObject,
-    object_from_palm: &Pose,
-    spread_rad: f64,
-    options: &AutoGraspOptions,
-) -> Result<GraspOutcome, GraspSimError> {
-    options.validate()?;
+/// Checks a pre-shape against the hand's joint ranges: the spread and each
+/// finger's flex.
+pub fn validate_preshape(hand: &HandModel, preshape: &HandPose) -> Result<(), GraspSimError> {
     let (lower_rad, upper_rad) = hand.spread_limits_rad;
+    let spread_rad = preshape.spread_rad;
     if !(spread_rad >= lower_rad && spread_rad <= upper_rad) {
         return Err(GraspSimError::Spread {
             spread_rad,
@@ -370,6 +384,33 @@ pub fn close_hand(
             upper_rad,
         });
     }
+    for (i, (f, &flex_rad)) in hand.fingers.iter().zip(&preshape.flex_rad).enumerate() {
+        let (lower_rad, upper_rad) = f.flex_limits_rad;
+        if !(flex_rad >= lower_rad && flex_rad <= upper_rad) {
+            return Err(GraspSimError::Preshape {
+                finger: i + 1,
+                flex_rad,
+                lower_rad,
+                upper_rad,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Closes the hand at `object_from_palm` around `object` from `preshape` (its
+/// spread, and each finger's flex at the start; [`HandPose::open`] for the open
+/// hand).
+pub fn close_hand(
+    hand: &HandModel,
+    object: &GraspObject,
+    object_from_palm: &Pose,
+    preshape: &HandPose,
+    options: &AutoGraspOptions,
+) -> Result<GraspOutcome, GraspSimError> {
+    options.validate()?;
+    validate_preshape(hand, preshape)?;
+    let spread_rad = preshape.spread_rad;
     let finite = object_from_palm
         .translation
         .vector
@@ -406,16 +447,18 @@ pub fn close_hand(
         contacts: Vec::new(),
     };
     for (i, f) in hand.fingers.iter().enumerate() {
-        outcome.hand.flex_rad[i] = f.flex_limits_rad.0;
-        outcome.distal_rad[i] = f.coupled_distal_rad(f.flex_limits_rad.0);
+        let start = start_flex(f, preshape.flex_rad[i]);
+        outcome.hand.flex_rad[i] = start;
+        outcome.distal_rad[i] = f.coupled_distal_rad(start);
     }
-    if let Some(c) = open_hand_collision(hand, object, object_from_palm, spread_rad) {
+    if let Some(c) = open_hand_collision(hand, object, object_from_palm, preshape) {
         outcome.collision_at_start = Some(c);
         return Ok(outcome);
     }
     let mut final_links = vec![(&hand.palm, *object_from_palm)];
     for (i, f) in hand.fingers.iter().enumerate() {
-        let (flex, distal, stop) = sim.close_finger(f, &bases[i]);
+        let start = start_flex(f, preshape.flex_rad[i]);
+        let (flex, distal, stop) = sim.close_finger(f, &bases[i], start);
         outcome.hand.flex_rad[i] = flex;
         outcome.distal_rad[i] = distal;
         outcome.stops[i] = stop;
@@ -429,18 +472,25 @@ pub fn close_hand(
     Ok(outcome)
 }
 
-/// The links of the open hand (fingers at their lower flex limits, distal
-/// links coupled) with `object_from_palm` and `spread_rad`: palm, then each
-/// finger's proximal and distal link.
+/// A finger's flex at the start of closing: the pre-shape's, never below the
+/// joint's lower limit (so the open pre-shape, flex 0, is the lower limit).
+fn start_flex(finger: &Finger, preshape_flex_rad: f64) -> f64 {
+    let (lo, hi) = finger.flex_limits_rad;
+    preshape_flex_rad.clamp(lo, hi)
+}
+
+/// The links of the hand in `preshape` (each finger at its pre-shape flex, distal
+/// links coupled) with `object_from_palm`: palm, then each finger's proximal and
+/// distal link.
 fn open_hand_links<'h>(
     hand: &'h HandModel,
     object_from_palm: &Pose,
-    spread_rad: f64,
+    preshape: &HandPose,
 ) -> Vec<(&'h HandLink, Pose)> {
     let mut links: Vec<(&HandLink, Pose)> = vec![(&hand.palm, *object_from_palm)];
-    for f in &hand.fingers {
-        let base = object_from_palm * f.palm_from_flex_base(spread_rad);
-        let lo = f.flex_limits_rad.0;
+    for (f, &flex) in hand.fingers.iter().zip(&preshape.flex_rad) {
+        let base = object_from_palm * f.palm_from_flex_base(preshape.spread_rad);
+        let lo = start_flex(f, flex);
         let (p, d) = f.link_poses_from_base(&base, lo, f.coupled_distal_rad(lo));
         links.push((&f.proximal, p));
         links.push((&f.distal, d));
@@ -448,13 +498,14 @@ fn open_hand_links<'h>(
     links
 }
 
-/// The first collision of the open hand (fingers at their lower flex limits) at
-/// `object_from_palm` with the object or the table, or the palm inside the object.
+/// The first collision of the hand in its pre-shape (the open hand of
+/// [`HandPose::open`]: fingers at their lower flex limits) at `object_from_palm`
+/// with the object or the table, or the palm inside the object.
 pub fn open_hand_collision(
     hand: &HandModel,
     object: &GraspObject,
     object_from_palm: &Pose,
-    spread_rad: f64,
+    preshape: &HandPose,
 ) -> Option<StartCollision> {
     let options = AutoGraspOptions::default();
     let sim = Sim {
@@ -462,7 +513,7 @@ pub fn open_hand_collision(
         options: &options,
         dispatcher: DefaultQueryDispatcher,
     };
-    open_hand_links(hand, object_from_palm, spread_rad)
+    open_hand_links(hand, object_from_palm, preshape)
         .into_iter()
         .find_map(|(link, pose)| {
             sim.hits(link, &pose).map(|with| StartCollision {
@@ -487,14 +538,14 @@ pub fn open_hand_collision(
         })
 }
 
-/// True when every link of the open hand at `object_from_palm` is provably
-/// farther than `margin_m` from the object and the table (conservative: false
-/// may still be clear).
+/// True when every link of the hand in `preshape` at `object_from_palm` is
+/// provably farther than `margin_m` from the object and the table (conservative:
+/// false may still be clear).
 pub fn open_hand_clear_by(
     hand: &HandModel,
     object: &GraspObject,
     object_from_palm: &Pose,
-    spread_rad: f64,
+    preshape: &HandPose,
     margin_m: f64,
 ) -> bool {
     let options = AutoGraspOptions::default();
@@ -503,24 +554,24 @@ pub fn open_hand_clear_by(
         options: &options,
         dispatcher: DefaultQueryDispatcher,
     };
-    open_hand_links(hand, object_from_palm, spread_rad)
+    open_hand_links(hand, object_from_palm, preshape)
         .iter()
         .all(|(link, pose)| sim.clear_by(link, pose, margin_m))
 }
 
 /// The pose backed off from `object_from_palm` along the palm's -z (the approach
-/// axis) just far enough that the open hand is clear, at most `max_retreat_m`:
+/// axis) just far enough that the hand in `preshape` is clear, at most `max_retreat_m`:
 /// where an approach along z would have stopped at contact. The pose itself when
 /// it is clear; None when even the largest retreat collides.
 pub fn retreat_until_clear(
     hand: &HandModel,
     object: &GraspObject,
     object_from_palm: &Pose,
-    spread_rad: f64,
+    preshape: &HandPose,
     max_retreat_m: f64,
 ) -> Option<Pose> {
     let back = |d: f64| object_from_palm * Pose::translation(0.0, 0.0, -d);
-    let collides = |d: f64| open_hand_collision(hand, object, &back(d), spread_rad).is_some();
+    let collides = |d: f64| open_hand_collision(hand, object, &back(d), preshape).is_some();
     if !collides(0.0) {
         return Some(*object_from_palm);
     }
@@ -558,18 +609,18 @@ pub struct GraspEvaluation {
     pub approach: Option<super::approach::ApproachStop>,
 }
 
-/// Auto-grasp at `object_from_palm` and the quality of the result; `with_volume`
-/// adds the qhull volume (slower).
+/// Auto-grasp at `object_from_palm` from `preshape` and the quality of the result;
+/// `with_volume` adds the qhull volume (slower).
 pub fn evaluate_grasp(
     hand: &HandModel,
     object: &GraspObject,
     object_from_palm: &Pose,
-    spread_rad: f64,
+    preshape: &HandPose,
     options: &AutoGraspOptions,
     params: &QualityParams,
     with_volume: bool,
 ) -> Result<GraspEvaluation, GraspSimError> {
-    let outcome = close_hand(hand, object, object_from_palm, spread_rad, options)?;
+    let outcome = close_hand(hand, object, object_from_palm, preshape, options)?;
     let params = object.quality_params(params);
     params.validate()?;
     let contacts = outcome.metric_contacts();
@@ -592,14 +643,15 @@ pub fn evaluate_grasp(
     })
 }
 
-/// A grasp to evaluate with its approach: where the palm is planned, the spread, and
-/// how the palm is brought there ([`evaluate_approached_grasp`]).
+/// A grasp to evaluate with its approach: where the palm is planned, the hand's
+/// pre-shape (spread and flex), and how the palm is brought there
+/// ([`evaluate_approached_grasp`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ApproachedGrasp {
     /// The planned palm pose in the object frame.
     pub object_from_palm: Pose,
-    /// The spread (rad).
-    pub spread_rad: f64,
+    /// The spread and each finger's flex before closing ([`HandPose::open`]: open).
+    pub preshape: HandPose,
     /// How the palm is brought to `object_from_palm`.
     pub approach: GraspApproach,
 }
@@ -621,7 +673,7 @@ pub fn evaluate_approached_grasp(
 ) -> Result<GraspEvaluation, GraspSimError> {
     let ApproachedGrasp {
         object_from_palm,
-        spread_rad,
+        preshape,
         approach,
     } = grasp;
     let GraspApproach::ToContact(approach) = approach else {
@@ -629,24 +681,19 @@ pub fn evaluate_approached_grasp(
             hand,
             object,
             object_from_palm,
-            *spread_rad,
+            preshape,
             options,
             params,
             with_volume,
         );
     };
-    let stop = super::approach::approach_to_contact(
-        hand,
-        object,
-        object_from_palm,
-        *spread_rad,
-        approach,
-    )?;
+    let stop =
+        super::approach::approach_to_contact(hand, object, object_from_palm, preshape, approach)?;
     let mut e = evaluate_grasp(
         hand,
         object,
         &stop.object_from_palm,
-        *spread_rad,
+        preshape,
         options,
         params,
         with_volume,
@@ -893,8 +940,9 @@ impl Sim<'_> {
         }
     }
 
-    /// Closes one finger: returns the flex and distal angles and why it stopped.
-    fn close_finger(&self, finger: &Finger, base: &Pose) -> (f64, f64, FingerStop) {
+    /// Closes one finger from flex `start`: returns the flex and distal angles and
+    /// why it stopped.
+    fn close_finger(&self, finger: &Finger, base: &Pose, start: f64) -> (f64, f64, FingerStop) {
         let step = self.options.step_rad;
         let tol = self.options.tolerance_rad;
         let (lo, hi) = finger.flex_limits_rad;
@@ -911,7 +959,7 @@ impl Sim<'_> {
             self.clear_by(&finger.proximal, &p, FREE_MARGIN_M)
                 && self.clear_by(&finger.distal, &d, FREE_MARGIN_M)
         };
-        let mut free = lo;
+        let mut free = start.max(lo);
         let proximal_stop = loop {
             if free >= hi {
                 return (hi, finger.coupled_distal_rad(hi), FingerStop::Limit);
@@ -1157,7 +1205,7 @@ pub(crate) mod tests {
             &hand,
             &obj,
             &side_pose(radius, 2e-4),
-            0.0,
+            &HandPose::open(0.0),
             &AutoGraspOptions::default(),
             &QualityParams::default(),
             true,
@@ -1197,7 +1245,7 @@ pub(crate) mod tests {
             &hand,
             &obj,
             &far,
-            0.5,
+            &HandPose::open(0.5),
             &AutoGraspOptions::default(),
             &QualityParams::default(),
             false,
@@ -1217,7 +1265,14 @@ pub(crate) mod tests {
         let radius = 0.035;
         let obj = object(&cylinder(radius, 0.2, 32));
         let into = Pose::translation(0.01, 0.0, 0.0) * side_pose(radius, 0.0);
-        let o = close_hand(&hand, &obj, &into, 0.0, &AutoGraspOptions::default()).unwrap();
+        let o = close_hand(
+            &hand,
+            &obj,
+            &into,
+            &HandPose::open(0.0),
+            &AutoGraspOptions::default(),
+        )
+        .unwrap();
         assert_eq!(
             o.collision_at_start,
             Some(StartCollision {
@@ -1233,7 +1288,7 @@ pub(crate) mod tests {
             &hand,
             &block,
             &Pose::identity(),
-            0.0,
+            &HandPose::open(0.0),
             &AutoGraspOptions::default(),
         )
         .unwrap();
@@ -1241,7 +1296,14 @@ pub(crate) mod tests {
         // Clear of the object but the fingers in the table.
         let obj = object(&cylinder(radius, 0.2, 32)).with_table(Some(-0.0));
         let low = Pose::translation(0.0, 0.0, -0.1) * side_pose(radius, 1e-3);
-        let o = close_hand(&hand, &obj, &low, 0.0, &AutoGraspOptions::default()).unwrap();
+        let o = close_hand(
+            &hand,
+            &obj,
+            &low,
+            &HandPose::open(0.0),
+            &AutoGraspOptions::default(),
+        )
+        .unwrap();
         assert_eq!(o.collision_at_start.unwrap().with, Obstacle::Table);
     }
 
@@ -1299,7 +1361,7 @@ pub(crate) mod tests {
             &hand,
             &plate,
             &Pose::identity(),
-            0.3,
+            &HandPose::open(0.3),
             &AutoGraspOptions::default(),
         )
         .unwrap();

@@ -23,6 +23,7 @@ use super::autograsp::{
 use super::QualityParams;
 use crate::geometry::{pose_from_params, Pose, PoseParams};
 use crate::robot::hand::HandModel;
+use crate::robot::HandPose;
 use nalgebra::{UnitQuaternion, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -134,23 +135,24 @@ pub fn displaced(params: &PoseParams, dof: usize, offset: f64) -> Pose {
     }
 }
 
-/// The stability ranges of the grasp at `params` (palm in the object frame) with
-/// `spread_rad`; the twelve directions run in parallel.
+/// The stability ranges of the grasp at `params` (palm in the object frame) from
+/// `preshape` (spread and flex before closing); the twelve directions run in
+/// parallel.
 pub fn stability_range(
     hand: &HandModel,
     object: &GraspObject,
     params: &PoseParams,
-    spread_rad: f64,
+    preshape: &HandPose,
     grasp: &AutoGraspOptions,
     quality: &QualityParams,
     options: &StabilityOptions,
 ) -> Result<StabilityRange, GraspSimError> {
     options.validate()?;
     let stable = |p: &Pose| -> Result<bool, GraspSimError> {
-        let Some(pose) = retreat_until_clear(hand, object, p, spread_rad, options.retreat_m) else {
+        let Some(pose) = retreat_until_clear(hand, object, p, preshape, options.retreat_m) else {
             return Ok(false);
         };
-        let e = evaluate_grasp(hand, object, &pose, spread_rad, grasp, quality, false)?;
+        let e = evaluate_grasp(hand, object, &pose, preshape, grasp, quality, false)?;
         Ok(e.outcome.collision_at_start.is_none() && e.force_closure)
     };
     let ranges: Vec<f64> = (0..12)
@@ -226,7 +228,7 @@ mod tests {
             &hand,
             &object,
             &params,
-            0.0,
+            &HandPose::open(0.0),
             &AutoGraspOptions::default(),
             &QualityParams::default(),
             &options,
@@ -268,7 +270,7 @@ mod tests {
             &hand,
             &object,
             &params,
-            0.0,
+            &HandPose::open(0.0),
             &AutoGraspOptions::default(),
             &QualityParams::default(),
             &options,

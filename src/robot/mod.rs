@@ -103,6 +103,95 @@ impl HandPose {
         spread_rad: 0.0,
         flex_rad: [0.0; 3],
     };
+
+    /// The open hand (every finger at flex 0) at `spread_rad`: the pre-shape of a
+    /// grasp that names none.
+    pub const fn open(spread_rad: f64) -> HandPose {
+        HandPose {
+            spread_rad,
+            flex_rad: [0.0; 3],
+        }
+    }
+
+    /// Whether every finger is at flex 0.
+    pub fn is_open(&self) -> bool {
+        self.flex_rad == [0.0; 3]
+    }
+}
+
+/// The BH8-282's flex range (rad), each finger: open (0) to folded over the palm
+/// (140 deg); the shipped URDF's limits.
+pub const FLEX_LIMITS_RAD: (f64, f64) = (0.0, 2.44);
+
+/// A grasp's pre-shape: each finger's flex before the approach (rad), F1 F2 F3.
+/// Zero is the open hand, the default. The BH8-282 positions each finger's puck
+/// on its own, so the fingers may differ; written as one number when they agree
+/// (`preshape_rad = 0.9`) and as three otherwise (`preshape_rad = [0.9, 0.9, 1.1]`).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PreshapeRad(pub [f64; 3]);
+
+impl PreshapeRad {
+    /// The open hand.
+    pub const OPEN: PreshapeRad = PreshapeRad([0.0; 3]);
+
+    /// Whether every finger is open (the default, left out of files).
+    pub fn is_open(&self) -> bool {
+        self.0 == [0.0; 3]
+    }
+
+    /// The hand at `spread_rad` in this pre-shape.
+    pub fn at_spread(&self, spread_rad: f64) -> HandPose {
+        HandPose {
+            spread_rad,
+            flex_rad: self.0,
+        }
+    }
+
+    /// Why the pre-shape is unusable: a flex that is not finite or outside
+    /// `limits_rad` (each finger's flex range), named by finger; `None` when fine.
+    pub fn problem(&self, limits_rad: (f64, f64)) -> Option<String> {
+        let (lo, hi) = limits_rad;
+        self.0.iter().enumerate().find_map(|(i, &f)| {
+            (!(f.is_finite() && f >= lo && f <= hi)).then(|| {
+                format!(
+                    "preshape_rad of F{} = {f} is outside the flex range [{lo}, {hi}] rad",
+                    i + 1
+                )
+            })
+        })
+    }
+}
+
+impl Serialize for PreshapeRad {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let [a, b, c] = self.0;
+        if a == b && b == c {
+            s.serialize_f64(a)
+        } else {
+            self.0.serialize(s)
+        }
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for PreshapeRad {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(serde::Deserialize)]
+        #[serde(untagged)]
+        enum Form {
+            All(f64),
+            Each([f64; 3]),
+        }
+        Ok(
+            match Form::deserialize(d).map_err(|_| {
+                serde::de::Error::custom(
+                    "preshape_rad must be one flex for every finger or three (F1, F2, F3), rad",
+                )
+            })? {
+                Form::All(f) => PreshapeRad([f; 3]),
+                Form::Each(f) => PreshapeRad(f),
+            },
+        )
+    }
 }
 
 /// Why a palm pose cannot be reached.

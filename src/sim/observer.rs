@@ -45,7 +45,7 @@ use crate::quality::autograsp::{
 };
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
-use crate::robot::RobotError;
+use crate::robot::{PreshapeRad, RobotError};
 use crate::sim::physics::{
     lift_test, LiftOutcome, LiftRule, LiftScene, PhysicsError, PhysicsObject, PhysicsOptions,
 };
@@ -138,6 +138,8 @@ pub enum Attempt {
         base_from_palm: Pose,
         /// Hand spread (rad).
         spread_rad: f64,
+        /// Each finger's flex before closing (rad): the plan's pre-shape.
+        preshape_rad: PreshapeRad,
         /// Pose of the best-fitting model (lowest eps), for the cause of a failure.
         best_fit: Option<Pose>,
     },
@@ -441,7 +443,7 @@ impl Observer {
         base_from_object: &Pose,
         attempt: &Attempt,
     ) -> Result<Observation, ObserverError> {
-        let (base_from_palm, spread_rad, best_fit) = match attempt {
+        let (base_from_palm, preshape, best_fit) = match attempt {
             Attempt::NotPlanned { cause, detail } => {
                 return Ok(self.unexecuted(
                     GradeRule::NotPlanned,
@@ -459,8 +461,13 @@ impl Observer {
             Attempt::Executed {
                 base_from_palm,
                 spread_rad,
+                preshape_rad,
                 best_fit,
-            } => (base_from_palm, *spread_rad, best_fit),
+            } => (
+                base_from_palm,
+                preshape_rad.at_spread(*spread_rad),
+                best_fit,
+            ),
         };
         let simulation = |source| ObserverError::Simulation {
             object: object.to_string(),
@@ -478,14 +485,14 @@ impl Observer {
         // start collision.
         let pressed = base_from_object.inverse() * base_from_palm;
         let object_from_palm =
-            retreat_until_clear(&self.hand, &grasp_object, &pressed, spread_rad, PRESSED_M)
+            retreat_until_clear(&self.hand, &grasp_object, &pressed, &preshape, PRESSED_M)
                 .unwrap_or(pressed);
         let base_from_palm = &(base_from_object * object_from_palm);
         let evaluation = evaluate_grasp(
             &self.hand,
             &grasp_object,
             &object_from_palm,
-            spread_rad,
+            &preshape,
             &self.options,
             &self.params,
             false,
@@ -518,7 +525,7 @@ impl Observer {
             &LiftScene {
                 base_from_object: *base_from_object,
                 base_from_palm: *base_from_palm,
-                spread_rad,
+                preshape,
                 table_height_m: Some(self.table_height_m),
             },
             &self.physics,
@@ -687,6 +694,7 @@ mod tests {
         let executed = Attempt::Executed {
             base_from_palm: base_from_object * model_from_palm,
             spread_rad: grasp.spread_rad,
+            preshape_rad: grasp.preshape_rad,
             best_fit: Some(base_from_object),
         };
         let seen = observer
@@ -709,6 +717,7 @@ mod tests {
         let missed = Attempt::Executed {
             base_from_palm: beside * base_from_object * model_from_palm,
             spread_rad: grasp.spread_rad,
+            preshape_rad: grasp.preshape_rad,
             best_fit: Some(beside * base_from_object),
         };
         let seen = observer

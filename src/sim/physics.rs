@@ -52,6 +52,7 @@ use crate::geometry::Pose;
 use crate::mesh::TriMesh;
 use crate::quality::autograsp::{open_hand_collision, GraspObject, GraspSimError, StartCollision};
 use crate::robot::hand::{Finger, HandLink, HandModel};
+use crate::robot::HandPose;
 use crate::trial::Grade;
 use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
 use parry3d_f64::mass_properties::MassProperties;
@@ -415,8 +416,9 @@ pub struct LiftScene {
     /// The palm's start pose: where the hand closes. With approach to contact this
     /// is the pose where the approach stopped (the palm is not moved before closing).
     pub base_from_palm: Pose,
-    /// Spread of F1 and F2 (rad), held through the test.
-    pub spread_rad: f64,
+    /// The hand's pre-shape: the spread of F1 and F2 (rad), held through the
+    /// test, and each finger's flex where closing starts ([`HandPose::open`]: open).
+    pub preshape: HandPose,
     /// Height of the table top (m, base z); `None`: no table (the object floats
     /// until the fingers touch it, a test of the hand alone).
     pub table_height_m: Option<f64>,
@@ -734,9 +736,10 @@ fn check_inputs(
     finite(&scene.base_from_object, "object")?;
     finite(&scene.base_from_palm, "palm")?;
     let (lower_rad, upper_rad) = hand.spread_limits_rad;
-    if !(scene.spread_rad >= lower_rad && scene.spread_rad <= upper_rad) {
+    let spread_rad = scene.preshape.spread_rad;
+    if !(spread_rad >= lower_rad && spread_rad <= upper_rad) {
         return Err(PhysicsError::Spread {
-            spread_rad: scene.spread_rad,
+            spread_rad,
             lower_rad,
             upper_rad,
         });
@@ -780,9 +783,9 @@ fn start_collision(
             hand,
             &object.grasp.clone().with_table(Some(h)),
             &object_from_palm,
-            scene.spread_rad,
+            &scene.preshape,
         ),
-        None => open_hand_collision(hand, &object.grasp, &object_from_palm, scene.spread_rad),
+        None => open_hand_collision(hand, &object.grasp, &object_from_palm, &scene.preshape),
     }
 }
 
@@ -843,17 +846,19 @@ fn add_object(
     (body, collider)
 }
 
-/// Adds `finger`'s links, open, and its joints to `palm`; the finger and its links'
+/// Adds `finger` (index `index`)'s links, in the pre-shape, and its joints to `palm`; the finger and its links'
 /// colliders.
 fn add_finger(
     world: &mut World,
     palm: RigidBodyHandle,
     finger: &Finger,
+    index: usize,
     scene: &LiftScene,
     mu: f64,
 ) -> (FingerBody, Vec<ColliderHandle>) {
-    let palm_from_flex_base = finger.palm_from_flex_base(scene.spread_rad);
-    let flex0 = finger.flex_limits_rad.0;
+    let palm_from_flex_base = finger.palm_from_flex_base(scene.preshape.spread_rad);
+    let (lo, hi) = finger.flex_limits_rad;
+    let flex0 = scene.preshape.flex_rad[index].clamp(lo, hi);
     let distal0 = finger.coupled_distal_rad(flex0);
     let (p, d) = finger.link_poses_from_base(&palm_from_flex_base, flex0, distal0);
     let proximal = world.bodies.insert(link_body(scene.base_from_palm * p));
@@ -1034,8 +1039,8 @@ impl<'a> LiftRig<'a> {
             .insert(RigidBodyBuilder::kinematic_position_based().pose(scene.base_from_palm));
         let mut part_colliders = vec![attach(&mut world, palm, &hand.palm, mu, 0.0)];
         let mut fingers = Vec::with_capacity(3);
-        for finger in &hand.fingers {
-            let (body, colliders) = add_finger(&mut world, palm, finger, scene, mu);
+        for (index, finger) in hand.fingers.iter().enumerate() {
+            let (body, colliders) = add_finger(&mut world, palm, finger, index, scene, mu);
             part_colliders.push(colliders);
             fingers.push(body);
         }
@@ -1210,7 +1215,7 @@ pub(crate) mod tests {
         let scene = LiftScene {
             base_from_object,
             base_from_palm,
-            spread_rad: 0.0,
+            preshape: HandPose::open(0.0),
             table_height_m: Some(0.0),
         };
         (object, scene)
@@ -1275,7 +1280,7 @@ pub(crate) mod tests {
                 std::f64::consts::FRAC_PI_2,
                 0.0,
             ]),
-            spread_rad: 0.0,
+            preshape: HandPose::open(0.0),
             table_height_m: Some(0.0),
         };
         let held = lift_test(&hand, &object, &scene, &options).unwrap();
@@ -1346,7 +1351,7 @@ pub(crate) mod tests {
                     &hand,
                     &table,
                     &(base_from_object.inverse() * base_from_palm),
-                    0.0,
+                    &crate::robot::HandPose::open(0.0),
                     &AutoGraspOptions::default(),
                     &crate::quality::QualityParams::default(),
                     false,
@@ -1364,7 +1369,7 @@ pub(crate) mod tests {
         let scene = LiftScene {
             base_from_object,
             base_from_palm,
-            spread_rad: 0.0,
+            preshape: HandPose::open(0.0),
             table_height_m: Some(0.0),
         };
         let out = lift_test(&hand, &object, &scene, &options).unwrap();

@@ -106,9 +106,10 @@ pub struct EmulatorStats {
 /// What the emulated fingers close on: the simulated world seen from the hand
 /// (`crate::sim::world::HandContact`), or a test's script.
 pub trait Feel: Send {
-    /// Where F1, F2, F3 stall when closing now from open with the spread at
-    /// `spread_rad` (flex angle, rad); `None`: free to the limit.
-    fn contacts(&mut self, spread_rad: f64) -> [Option<f64>; 3];
+    /// Where F1, F2, F3 stall when closing now from `start` (the spread and each
+    /// finger's flex now: open, or a grasp's pre-shape) (flex angle, rad); `None`:
+    /// free to the limit.
+    fn contacts(&mut self, start: &crate::robot::HandPose) -> [Option<f64>; 3];
     /// Whether the object the fingers press on is still in the hand.
     fn still_held(&mut self) -> bool;
     /// The hand's joints now, and whether its fingers press on the object.
@@ -208,12 +209,15 @@ impl HandEmulator {
         if !closing || !to_finger || self.pucks.iter().any(EmulatedPuck::pressing) {
             return;
         }
-        let spread_rad = self
-            .pucks
-            .iter()
-            .find(|p| p.puck == Puck::Spread)
-            .map_or(0.0, |p| p.position / p.counts_per_rad);
-        let contacts = feel.contacts(spread_rad);
+        let mut start = crate::robot::HandPose::OPEN;
+        for p in &self.pucks {
+            let rad = p.position / p.counts_per_rad;
+            match p.puck {
+                Puck::Spread => start.spread_rad = rad,
+                finger => start.flex_rad[finger.index()] = rad,
+            }
+        }
+        let contacts = feel.contacts(&start);
         for p in &mut self.pucks {
             if p.puck.is_finger() {
                 p.contact_counts = contacts[p.puck.index()].map(|rad| rad * p.counts_per_rad);

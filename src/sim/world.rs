@@ -217,18 +217,18 @@ impl SimWorld {
     }
 
     /// Whether the object nearest the palm comes up when the hand closes at
-    /// `base_from_palm` with `spread_rad` and the arm lifts: the physics lift test
+    /// `base_from_palm` from `start` (spread and pre-shape) and the arm lifts: the
+    /// physics lift test
     /// lifts it (held, or slipped within the hand). `None` when the world has no
     /// physics ([`SimWorld::with_physics`]) or no object.
-    pub fn lift_holds(&self, base_from_palm: &Pose, spread_rad: f64) -> Option<bool> {
+    pub fn lift_holds(&self, base_from_palm: &Pose, start: &HandPose) -> Option<bool> {
         let options = self.physics.as_ref()?;
         let o = self.nearest(base_from_palm)?;
         let body = o.physics.as_ref()?;
-        let (lo, hi) = self.hand.spread_limits_rad;
         let scene = LiftScene {
             base_from_object: o.base_from_object,
             base_from_palm: *base_from_palm,
-            spread_rad: spread_rad.clamp(lo, hi),
+            preshape: clamped(&self.hand, start),
             table_height_m: self.table.map(|t| t.height_m),
         };
         match lift_test(&self.hand, body, &scene, options) {
@@ -316,15 +316,15 @@ impl SimWorld {
         [f.x, f.y, f.z, t.z, t.y, t.x]
     }
 
-    /// Where the fingers stop when the hand closes at `base_from_palm` with
-    /// `spread_rad` (clamped to the joint's range): auto-grasp on the object
+    /// Where the fingers stop when the hand closes at `base_from_palm` from
+    /// `start` (the spread, clamped to the joint's range, and each finger's flex
+    /// now: open, or the grasp's pre-shape): auto-grasp on the object
     /// nearest the palm. A palm slightly inside the object (a guarded move stops
     /// a little past first contact) is first backed off along its approach axis
     /// until clear, by at most 20 mm; a hand jammed deeper stalls where it is.
-    pub fn closing(&self, base_from_palm: &Pose, spread_rad: f64) -> Closing {
+    pub fn closing(&self, base_from_palm: &Pose, start: &HandPose) -> Closing {
         let hand = &self.hand;
-        let (lo, hi) = hand.spread_limits_rad;
-        let spread = spread_rad.clamp(lo, hi);
+        let start = clamped(hand, start);
         let nearest = self.nearest(base_from_palm);
         let free = Closing {
             stall_rad: [None; 3],
@@ -336,10 +336,10 @@ impl SimWorld {
             return free;
         };
         let object_from_palm = o.base_from_object.inverse() * base_from_palm;
-        let Some(pose) = retreat_until_clear(hand, &o.object, &object_from_palm, spread, 0.02)
+        let Some(pose) = retreat_until_clear(hand, &o.object, &object_from_palm, &start, 0.02)
         else {
             return Closing {
-                stall_rad: hand.fingers.each_ref().map(|f| Some(f.flex_limits_rad.0)),
+                stall_rad: start.flex_rad.map(Some),
                 force_closure: false,
                 object: Some(o.name.clone()),
                 base_from_palm: *base_from_palm,
@@ -350,7 +350,7 @@ impl SimWorld {
             hand,
             &o.object,
             &pose,
-            spread,
+            &start,
             &options,
             &QualityParams::default(),
             false,
@@ -382,7 +382,7 @@ impl SimWorld {
             &self.hand,
             &o.object,
             &pose,
-            spread_rad,
+            &HandPose::open(spread_rad),
             &AutoGraspOptions::default(),
         )
         .ok()
@@ -717,6 +717,18 @@ pub struct HandContact {
     closed: Option<(Pose, Hold, f64)>,
 }
 
+/// `start` within the hand's joint ranges (spread and each finger's flex).
+fn clamped(hand: &HandModel, start: &HandPose) -> HandPose {
+    let (lo, hi) = hand.spread_limits_rad;
+    HandPose {
+        spread_rad: start.spread_rad.clamp(lo, hi),
+        flex_rad: std::array::from_fn(|i| {
+            let (lo, hi) = hand.fingers[i].flex_limits_rad;
+            start.flex_rad[i].clamp(lo, hi)
+        }),
+    }
+}
+
 /// Whether a closed grasp holds the object: known, or the lift test still running
 /// on its own thread (the static rule stands in should it fail to answer).
 enum Hold {
@@ -732,7 +744,7 @@ impl Hold {
     /// has physics, else (or should the test not start) by `static_rule` at once.
     /// The lift test takes tens of milliseconds, longer than a CAN reply may: it
     /// runs beside the emulator, at the lowest priority.
-    fn start(world: Arc<SimWorld>, closed_at: Pose, spread_rad: f64, static_rule: bool) -> Hold {
+    fn start(world: Arc<SimWorld>, closed_at: Pose, from: HandPose, static_rule: bool) -> Hold {
         if !world.has_physics() {
             return Hold::Known(static_rule);
         }
@@ -741,7 +753,7 @@ impl Hold {
             .name("lift-test".into())
             .spawn(move || {
                 crate::hw::realtime::lower_thread_priority();
-                send.send(world.lift_holds(&closed_at, spread_rad))
+                send.send(world.lift_holds(&closed_at, &from))
             });
         match test {
             Ok(_) => Hold::Pending {
@@ -789,19 +801,20 @@ impl HandContact {
 }
 
 impl crate::sim::puck::Feel for HandContact {
-    fn contacts(&mut self, spread_rad: f64) -> [Option<f64>; 3] {
+    fn contacts(&mut self, start: &HandPose) -> [Option<f64>; 3] {
         let (Some(world), Some(palm)) = (self.world.get(), self.link.palm()) else {
             self.closed = None;
             return [None; 3];
         };
-        let c = world.closing(&palm, spread_rad);
+        let spread_rad = start.spread_rad;
+        let c = world.closing(&palm, start);
         tracing::debug!(?c, "hand closes in the simulated world");
         // Each finger's close command asks again: one lift test per closing.
         let same_closing = self.closed.as_ref().is_some_and(|(at, _, spread)| {
             *spread == spread_rad && crate::geometry::pose_error(at, &palm).0 < 1e-4
         });
         if !same_closing {
-            let hold = Hold::start(world, c.base_from_palm, spread_rad, c.force_closure);
+            let hold = Hold::start(world, c.base_from_palm, *start, c.force_closure);
             self.closed = Some((palm, hold, spread_rad));
         }
         c.stall_rad
@@ -996,7 +1009,7 @@ mod tests {
             &hand_model,
             &object,
             &planned,
-            spread,
+            &HandPose::open(spread),
             &ApproachOptions::default(),
         )
         .unwrap();
@@ -1006,7 +1019,7 @@ mod tests {
             &hand_model,
             &object,
             &stop.object_from_palm,
-            spread,
+            &HandPose::open(spread),
             &AutoGraspOptions::default(),
         )
         .unwrap();
@@ -1083,11 +1096,11 @@ mod tests {
         scene.add("cylinder", mesh, lift.base_from_object).unwrap();
         let world = SimWorld::new(&scene, hand(), 2e4).unwrap();
         let palm = lift.base_from_palm;
-        assert_eq!(world.lift_holds(&palm, 0.0), None);
+        assert_eq!(world.lift_holds(&palm, &HandPose::open(0.0)), None);
         let world = world.with_physics(PhysicsOptions::default()).unwrap();
-        assert_eq!(world.lift_holds(&palm, 0.0), Some(true));
+        assert_eq!(world.lift_holds(&palm, &HandPose::open(0.0)), Some(true));
         let beside = Pose::translation(0.0, 0.3, 0.0) * palm;
-        assert_eq!(world.lift_holds(&beside, 0.0), Some(false));
+        assert_eq!(world.lift_holds(&beside, &HandPose::open(0.0)), Some(false));
     }
 
     #[test]

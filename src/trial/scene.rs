@@ -289,7 +289,7 @@ fn simulated_grasp(
         inputs.hand,
         &object,
         &object_from_palm,
-        spread_rad,
+        &crate::robot::HandPose::open(spread_rad),
         &AutoGraspOptions::default(),
     )
     .map_err(|e| tracing::warn!(trial = record.id, "grasp simulation: {e}"))

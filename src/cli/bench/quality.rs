@@ -5,6 +5,7 @@ use crate::config::CellConfig;
 use crate::quality::autograsp::{evaluate_grasp, AutoGraspOptions, GraspObject};
 use crate::quality::QualityParams;
 use crate::robot::hand::HandModel;
+use crate::robot::HandPose;
 use crate::sim::physics::{lift_test, LiftOutcome, LiftScene, PhysicsObject, PhysicsOptions};
 use crate::stats::median;
 use clap::Args;
@@ -106,7 +107,7 @@ struct GraspBench {
 fn bench_lifts(
     hand: &HandModel,
     mesh: &crate::mesh::TriMesh,
-    poses: &[(crate::geometry::Pose, f64)],
+    poses: &[(crate::geometry::Pose, HandPose)],
     count: usize,
     repeats: usize,
     pool: &rayon::ThreadPool,
@@ -117,11 +118,11 @@ fn bench_lifts(
     let body = PhysicsObject::new(mesh, Path::new("<bench mug>"), &options)?;
     let decomposition_s = start.elapsed().as_secs_f64();
     let poses = &poses[..count.min(poses.len())];
-    let lift = |(pose, spread): &(crate::geometry::Pose, f64)| {
+    let lift = |(pose, preshape): &(crate::geometry::Pose, HandPose)| {
         let scene = LiftScene {
             base_from_object: crate::geometry::Pose::identity(),
             base_from_palm: *pose,
-            spread_rad: *spread,
+            preshape: *preshape,
             table_height_m: Some(0.0),
         };
         lift_test(hand, &body, &scene, &options)
@@ -211,8 +212,8 @@ pub fn bench_grasp(config: &Path, args: QualityBenchArgs) -> anyhow::Result<Exit
             poses.push(p);
         }
     }
-    let evaluate = |(pose, spread): &(crate::geometry::Pose, f64)| {
-        evaluate_grasp(&hand, &object, pose, *spread, &options, &quality, false)
+    let evaluate = |(pose, preshape): &(crate::geometry::Pose, HandPose)| {
+        evaluate_grasp(&hand, &object, pose, preshape, &options, &quality, false)
     };
     let results: Vec<_> = poses.iter().map(evaluate).collect::<Result<_, _>>()?;
     let n = args.grasps as f64;
@@ -246,8 +247,8 @@ pub fn bench_grasp(config: &Path, args: QualityBenchArgs) -> anyhow::Result<Exit
         let start = Instant::now();
         let count: usize = poses
             .iter()
-            .map(|(pose, spread)| {
-                close_hand(&hand, &object, pose, *spread, &options).map_or(0, |o| o.contacts.len())
+            .map(|(pose, preshape)| {
+                close_hand(&hand, &object, pose, preshape, &options).map_or(0, |o| o.contacts.len())
             })
             .sum();
         std::hint::black_box(count);
