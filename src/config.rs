@@ -8,6 +8,7 @@
 //! `/etc/graspcell/cell.toml`, then the defaults built into the binary (the shipped
 //! `robot/cell.toml` with the shipped URDF), named [`BUILTIN_CONFIG`].
 
+use crate::fsio::FileError;
 use crate::geometry::{Pose, PoseJson};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -86,13 +87,8 @@ pub fn default_config_path() -> PathBuf {
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     /// The file could not be read.
-    #[error("cannot read config {path}: {source}")]
-    Read {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    #[error("cannot read config {}: {}", .0.path.display(), .0.source)]
+    Read(FileError),
     /// The file is not valid TOML for this schema.
     #[error("config {path}: {message}")]
     Parse {
@@ -330,10 +326,7 @@ impl CellConfig {
         let text = if builtin {
             BUILTIN_CONFIG_TEXT.to_string()
         } else {
-            std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-                path: path.to_path_buf(),
-                source,
-            })?
+            crate::fsio::read_to_string(path).map_err(ConfigError::Read)?
         };
         Self::parse(&text, path)
     }

@@ -1,11 +1,97 @@
 //! File output that is never half-written: [`write_atomically`], the crate's one way
-//! to write a file that readers may see (callers map its `io::Error` to their own
-//! error with the path), and [`create_parent_dir`] for files in new directories;
-//! [`TempDir`], a temporary directory that removes itself.
+//! to write a file that readers may see, and [`create_parent_dir`] for files in new
+//! directories; [`TempDir`], a temporary directory that removes itself.
+//!
+//! [`FileError`] is the crate's one shape of a failed file operation (what was being
+//! done, the path and the operating system's error); every module's error enum holds
+//! it in one variant. [`read`], [`read_to_string`], [`write`] (atomically) and
+//! [`create_dir_all`] return it, so callers write no `map_err` of their own.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+
+/// What was being done to a file when it failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FileOp {
+    /// Reading it (or opening it to read).
+    Read,
+    /// Writing it.
+    Write,
+    /// Creating a directory (and its parents).
+    CreateDir,
+    /// Listing a directory.
+    ListDir,
+    /// Removing a file or directory.
+    Remove,
+}
+
+impl std::fmt::Display for FileOp {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            FileOp::Read => "read",
+            FileOp::Write => "write",
+            FileOp::CreateDir => "create directory",
+            FileOp::ListDir => "list directory",
+            FileOp::Remove => "remove",
+        })
+    }
+}
+
+/// A file operation that failed: "cannot read mug.obj: No such file or directory (os
+/// error 2)".
+#[derive(Debug, thiserror::Error)]
+#[error("cannot {op} {}: {source}", path.display())]
+pub struct FileError {
+    /// What was being done.
+    pub op: FileOp,
+    /// The file or directory.
+    pub path: PathBuf,
+    /// The operating system's error.
+    #[source]
+    pub source: std::io::Error,
+}
+
+impl FileError {
+    /// `op` on `path` failed with `source`.
+    pub fn new(op: FileOp, path: &Path, source: std::io::Error) -> FileError {
+        FileError {
+            op,
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+
+    /// For `map_err`: the error of `op` on `path`.
+    pub fn of(op: FileOp, path: &Path) -> impl FnOnce(std::io::Error) -> FileError + '_ {
+        move |source| FileError::new(op, path, source)
+    }
+}
+
+/// The bytes of the file `path`.
+pub fn read(path: &Path) -> Result<Vec<u8>, FileError> {
+    std::fs::read(path).map_err(FileError::of(FileOp::Read, path))
+}
+
+/// The text of the file `path` (UTF-8).
+pub fn read_to_string(path: &Path) -> Result<String, FileError> {
+    std::fs::read_to_string(path).map_err(FileError::of(FileOp::Read, path))
+}
+
+/// The file `path`, opened to read.
+pub fn open(path: &Path) -> Result<std::fs::File, FileError> {
+    std::fs::File::open(path).map_err(FileError::of(FileOp::Read, path))
+}
+
+/// [`write_atomically`], naming the file in its error.
+pub fn write(path: &Path, bytes: &[u8]) -> Result<(), FileError> {
+    write_atomically(path, bytes).map_err(FileError::of(FileOp::Write, path))
+}
+
+/// Creates the directory `path` and its parents.
+pub fn create_dir_all(path: &Path) -> Result<(), FileError> {
+    std::fs::create_dir_all(path).map_err(FileError::of(FileOp::CreateDir, path))
+}
 
 /// Writes `bytes` to `path` so that readers see the old file or the whole new one,
 /// never part of it: a temporary file in the same directory is written, synced and
@@ -108,6 +194,29 @@ mod tests {
         assert_eq!(names.len(), 1);
         assert!(write_atomically(&dir.join("missing/f.txt"), b"x").is_err());
         create_parent_dir(Path::new("f.txt")).unwrap();
+    }
+
+    #[test]
+    fn a_file_error_names_the_operation_and_the_path() {
+        let dir = TempDir::new("fsio-error").unwrap();
+        let missing = dir.join("missing.json");
+        let err = read_to_string(&missing).unwrap_err();
+        assert_eq!(err.op, FileOp::Read);
+        let text = err.to_string();
+        assert!(text.starts_with("cannot read "), "{text}");
+        assert!(
+            text.contains("missing.json") && text.contains("os error 2"),
+            "{text}"
+        );
+        let err = write(&dir.join("no/such/dir/f"), b"x").unwrap_err();
+        assert!(err.to_string().starts_with("cannot write "), "{err}");
+        write(&dir.join("f"), b"x").unwrap();
+        assert_eq!(read(&dir.join("f")).unwrap(), b"x");
+        let err = create_dir_all(&dir.join("f").join("d")).unwrap_err();
+        assert!(
+            err.to_string().starts_with("cannot create directory "),
+            "{err}"
+        );
     }
 
     #[test]

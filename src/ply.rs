@@ -8,20 +8,16 @@
 //! [`encode`] writes the same structure back. Errors name the source and the place:
 //! a header or body line for ASCII, an element row and byte offset for binary.
 
+use crate::fsio::FileError;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// Errors of reading or encoding a PLY file; each names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum PlyError {
-    /// The file could not be read.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    /// A file could not be read or written.
+    #[error(transparent)]
+    File(#[from] FileError),
     /// The file is malformed at `location` ("line 7", "element vertex row 3, byte
     /// offset 120").
     #[error("{path}: {location}: {problem}")]
@@ -546,10 +542,7 @@ impl Ply {
 
 /// Reads and parses the PLY file at `path`.
 pub fn read(path: &Path) -> Result<Ply, PlyError> {
-    let bytes = std::fs::read(path).map_err(|source| PlyError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = crate::fsio::read(path)?;
     parse(&bytes, path)
 }
 

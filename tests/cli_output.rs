@@ -66,7 +66,7 @@ fn errors_name_each_cause_once() {
     assert!(stderr.contains("missing.toml"), "{stderr}");
     assert_eq!(stderr.matches("os error 2").count(), 1, "{stderr}");
 
-    // MeshError::Io around an I/O error.
+    // MeshError::File around an I/O error.
     let mesh = dir.join("missing.obj");
     let config = config();
     let (status, stderr) = run(&[

@@ -148,6 +148,7 @@ pub use samples::{PointSample, PoseSample, Sample, SampleFile};
 pub use solve::{solve, Method, MethodResult, Solution, SolveOptions, GROSS_RMS_DEG, GROSS_RMS_MM};
 pub use tsai_park::{park_martin, tsai_lenz};
 
+use crate::fsio::FileError;
 use crate::geometry::Pose;
 use std::path::PathBuf;
 
@@ -164,22 +165,9 @@ pub struct HandEye {
 /// Errors of hand–eye calibration: bad files, bad samples, degenerate motions.
 #[derive(Debug, thiserror::Error)]
 pub enum CalibError {
-    /// A file could not be read.
-    #[error("cannot read {path}: {source}")]
-    Read {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
-    /// A file could not be written (nothing was left half-written).
-    #[error("cannot write {path}: {source}")]
-    Write {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    /// A file could not be read or written.
+    #[error(transparent)]
+    File(#[from] FileError),
     /// A file is not valid JSON/TOML for its schema.
     #[error("{path}: {message}")]
     Parse {

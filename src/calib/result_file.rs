@@ -2,6 +2,7 @@
 
 use super::samples::{pose_from_json, MIN_SAMPLES};
 use super::{CalibError, ResidualStats, Solution};
+use crate::fsio::{FileError, FileOp};
 use crate::geometry::{GeometryError, Pose, PoseJson};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -59,10 +60,7 @@ impl HandEyeResult {
 
     /// Reads and validates a result file.
     pub fn load(path: &Path) -> Result<HandEyeResult, CalibError> {
-        let text = std::fs::read_to_string(path).map_err(|source| CalibError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::fsio::read_to_string(path)?;
         Self::parse(&text, path)
     }
 
@@ -123,10 +121,7 @@ impl HandEyeResult {
     pub fn save(&self, path: &Path) -> Result<(), CalibError> {
         crate::fsio::create_parent_dir(path)
             .and_then(|()| crate::fsio::write_atomically(path, self.to_toml().as_bytes()))
-            .map_err(|source| CalibError::Write {
-                path: path.to_path_buf(),
-                source,
-            })
+            .map_err(|source| FileError::new(FileOp::Write, path, source).into())
     }
 
     /// The camera's pose in the robot base frame.

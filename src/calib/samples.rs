@@ -1,6 +1,7 @@
 //! Calibration samples and the sample file (`calib/samples-DATE.json`).
 
 use super::CalibError;
+use crate::fsio::{FileError, FileOp};
 use crate::geometry::{GeometryError, Pose, PoseJson};
 use nalgebra::{Point3, Quaternion, UnitQuaternion};
 use serde::{Deserialize, Serialize};
@@ -128,10 +129,7 @@ struct SampleJson {
 impl SampleFile {
     /// Reads and validates a sample file (see the module doc for the format).
     pub fn load(path: &Path) -> Result<SampleFile, CalibError> {
-        let text = std::fs::read_to_string(path).map_err(|source| CalibError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::fsio::read_to_string(path)?;
         Self::parse(&text, path)
     }
 
@@ -233,10 +231,7 @@ impl SampleFile {
     pub fn save(&self, path: &Path) -> Result<(), CalibError> {
         crate::fsio::create_parent_dir(path)
             .and_then(|()| crate::fsio::write_atomically(path, self.to_json().as_bytes()))
-            .map_err(|source| CalibError::Write {
-                path: path.to_path_buf(),
-                source,
-            })
+            .map_err(|source| FileError::new(FileOp::Write, path, source).into())
     }
 }
 

@@ -17,6 +17,7 @@ pub mod teach;
 pub mod train;
 
 use crate::cloud::PointCloud;
+use crate::fsio::FileError;
 use crate::geometry::{params_from_pose, Pose, PoseJson, PoseParams};
 use crate::mesh::procedural::Category;
 use crate::mesh::TriMesh;
@@ -49,13 +50,8 @@ pub fn tasks_of(category: Category) -> &'static [&'static str] {
 #[derive(Debug, thiserror::Error)]
 pub enum CategoryError {
     /// A file could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    File(#[from] FileError),
     /// A file does not parse.
     #[error("{path}: {message}")]
     Parse {
@@ -328,10 +324,7 @@ impl CategoryDb {
     /// non-negative finite ranges.
     pub fn load(dir: &Path) -> Result<CategoryDb, CategoryError> {
         let path = dir.join(DATABASE_FILE);
-        let text = std::fs::read_to_string(&path).map_err(|source| CategoryError::Io {
-            path: path.clone(),
-            source,
-        })?;
+        let text = crate::fsio::read_to_string(&path)?;
         let file = DatabaseFile::parse(&text, &path)?;
         let meshes = file
             .models

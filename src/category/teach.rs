@@ -112,10 +112,7 @@ pub struct CheckedGrasp {
 impl TeachFile {
     /// Reads and parses `path`.
     pub fn load(path: &Path) -> Result<TeachFile, CategoryError> {
-        let text = std::fs::read_to_string(path).map_err(|source| CategoryError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::fsio::read_to_string(path)?;
         Self::parse_text(&text, path)
     }
 

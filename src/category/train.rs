@@ -14,7 +14,6 @@ use super::{
     ModelEntry, DATABASE_FILE, FORMAT_VERSION,
 };
 use crate::cloud::io::write_cloud;
-use crate::fsio::write_atomically;
 use crate::geometry::{params_from_pose, PoseJson};
 use crate::mesh::procedural::Category;
 use crate::mesh::TriMesh;
@@ -218,12 +217,8 @@ pub fn train(
         })
         .collect::<Result<Vec<_>, _>>()?;
 
-    let io_err = |path: &Path| {
-        let path = path.to_path_buf();
-        move |source| CategoryError::Io { path, source }
-    };
     let models_out = out.join("models");
-    std::fs::create_dir_all(&models_out).map_err(io_err(&models_out))?;
+    crate::fsio::create_dir_all(&models_out)?;
     let mut entries = Vec::with_capacity(models.len());
     for (name, mesh, object) in &models {
         let file = Path::new("models").join(format!("{name}.ply"));
@@ -250,7 +245,7 @@ pub fn train(
                 .map_err(cloud_err)?;
             let file = Path::new("clouds").join(format!("{name}.ply"));
             let dir = out.join("clouds");
-            std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+            crate::fsio::create_dir_all(&dir)?;
             write_cloud(
                 &out.join(&file),
                 &sampled,
@@ -307,5 +302,5 @@ pub fn train(
 pub fn write_database(dir: &Path, db: &DatabaseFile) -> Result<(), CategoryError> {
     let path = dir.join(DATABASE_FILE);
     let text = serde_json::to_string_pretty(db).expect("the database serialises") + "\n";
-    write_atomically(&path, text.as_bytes()).map_err(|source| CategoryError::Io { path, source })
+    Ok(crate::fsio::write(&path, text.as_bytes())?)
 }

@@ -35,6 +35,7 @@ use super::setup::TrialSetup;
 use super::{stop_requested, CellError, TICK};
 use crate::cloud::PointCloud;
 use crate::config::CellConfig;
+use crate::fsio::{FileError, FileOp};
 use crate::geometry::Pose;
 use crate::hw::kinect::fakenect::RawFrame;
 use crate::hw::kinect::gravity::{expected_gravity_camera, GravityCheck, STANDARD_GRAVITY_M_S2};
@@ -310,10 +311,7 @@ fn replay_file(dir: &Path, trial_id: u64, served: usize) -> Result<PathBuf, Cell
         }
     }
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(|source| CellError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?
+        .map_err(|source| FileError::new(FileOp::ListDir, dir, source))?
         .flatten()
         .map(|e| e.path())
         .filter(|p| p.extension().is_some_and(|e| e == "ply" || e == "pcd"))

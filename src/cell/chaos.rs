@@ -34,6 +34,7 @@ use super::harness::{placement_rng, random_placement, Cell, HarnessOptions};
 use super::setup::{novel_object_in, TrialSetup};
 use super::{CellError, STAGES};
 use crate::category::CategoryDb;
+use crate::fsio::{FileError, FileOp};
 use crate::hw::can::{Corruption, FaultConfig};
 use crate::ipc::{
     from_wire_bytes, AnyBitPattern, CameraStatus, CloudHeader, CloudTopic, Domain, ExecutionStatus,
@@ -357,10 +358,7 @@ struct LogDisk {
 impl LogDisk {
     /// Mounts a 16 MiB tmpfs at `dir` (needs CAP_SYS_ADMIN).
     fn mount(dir: &Path) -> Result<LogDisk, CellError> {
-        std::fs::create_dir_all(dir).map_err(|source| CellError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
+        crate::fsio::create_dir_all(dir)?;
         let out = std::process::Command::new("mount")
             .args(["-t", "tmpfs", "-o", "size=16m,mode=0700", "graspcell-chaos"])
             .arg(dir)
@@ -388,10 +386,7 @@ impl LogDisk {
     /// Fills the file system to the last byte.
     fn fill(&self) -> Result<(), CellError> {
         use std::io::Write;
-        let io = |source| CellError::Io {
-            path: self.ballast.clone(),
-            source,
-        };
+        let io = |source| CellError::from(FileError::new(FileOp::Write, &self.ballast, source));
         let mut file = std::fs::File::create(&self.ballast).map_err(io)?;
         let block = vec![0u8; 64 * 1024];
         let mut size = block.len();
@@ -507,19 +502,12 @@ fn panics_in(dir: &Path) -> (u32, Option<String>) {
 /// Takes the run directory for one campaign (created if missing): two would share
 /// the simulators' state, the log and the tmpfs. The lock lasts as long as the file.
 fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File, CellError> {
-    std::fs::create_dir_all(run_dir).map_err(|source| CellError::Io {
-        path: run_dir.to_path_buf(),
-        source,
-    })?;
+    crate::fsio::create_dir_all(run_dir)?;
     let lock_path = run_dir.join("chaos.lock");
-    let lock = std::fs::File::create(&lock_path).map_err(|source| CellError::Io {
-        path: lock_path.clone(),
-        source,
-    })?;
-    let locked = crate::sys::try_lock_file_exclusive(&lock).map_err(|source| CellError::Io {
-        path: lock_path.clone(),
-        source,
-    })?;
+    let lock = std::fs::File::create(&lock_path)
+        .map_err(|source| FileError::new(FileOp::Write, &lock_path, source))?;
+    let locked = crate::sys::try_lock_file_exclusive(&lock)
+        .map_err(|source| FileError::new(FileOp::Write, &lock_path, source))?;
     if !locked {
         return Err(CellError::Invalid(format!(
             "{}: another fault campaign runs in this directory",
@@ -542,12 +530,8 @@ fn log_disk(
         Ok(disk) => {
             harness.log_path = disk.mount.join("chaos.sqlite");
             if summary.log_path.is_file() {
-                std::fs::copy(&summary.log_path, &harness.log_path).map_err(|source| {
-                    CellError::Io {
-                        path: harness.log_path.clone(),
-                        source,
-                    }
-                })?;
+                std::fs::copy(&summary.log_path, &harness.log_path)
+                    .map_err(|source| FileError::new(FileOp::Write, &harness.log_path, source))?;
             }
             summary.disk_full = "a 16 MiB tmpfs under the log, filled to the last byte".into();
             Some(disk)
@@ -837,10 +821,8 @@ pub fn run(
     summary.first_panic = first_panic;
     // Back out of the small file system.
     if log_path != summary.log_path {
-        std::fs::copy(&log_path, &summary.log_path).map_err(|source| CellError::Io {
-            path: summary.log_path.clone(),
-            source,
-        })?;
+        std::fs::copy(&log_path, &summary.log_path)
+            .map_err(|source| FileError::new(FileOp::Write, &summary.log_path, source))?;
     }
     drop(disk);
     drop(lock);

@@ -10,6 +10,7 @@
 use super::setup::{upright_pose, TrialSetup};
 use super::{CellError, StageArgs, STAGES};
 use crate::config::CellConfig;
+use crate::fsio::{FileError, FileOp};
 use crate::hw::can::{FaultConfig, Hub};
 use crate::ipc::{
     monotonic_now_ns, Domain, JointStates, MessagePublisher, MessageSubscriber, Protocol, Stage,
@@ -174,7 +175,7 @@ fn spawn(
                         .append(true)
                         .open(&path)
                 })
-                .map_err(|source| CellError::Io { path, source })?;
+                .map_err(|source| FileError::new(FileOp::Write, &path, source))?;
             Stdio::from(file)
         }
         None => Stdio::inherit(),
@@ -480,7 +481,7 @@ impl Cell {
                 .map(Some)
                 .map_err(|e| CellError::Invalid(format!("{}: {e}", path.display()))),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(source) => Err(CellError::Io { path, source }),
+            Err(source) => Err(FileError::new(FileOp::Read, &path, source).into()),
         }
     }
 

@@ -761,10 +761,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
         .parent()
         .filter(|d| !d.as_os_str().is_empty())
     {
-        std::fs::create_dir_all(dir).map_err(|source| CellError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
+        crate::fsio::create_dir_all(dir)?;
     }
     let log = TrialLog::open(&options.log_path)?;
     let observer = match options.observer.mode() {

@@ -38,6 +38,7 @@ pub mod perceive;
 pub mod plan;
 pub mod setup;
 
+use crate::fsio::FileError;
 use crate::ipc::{Domain, IpcError};
 use clap::Args;
 use std::path::{Path, PathBuf};
@@ -113,9 +114,13 @@ pub enum CellError {
         detail: String,
     },
     /// A file operation failed.
+    #[error(transparent)]
+    File(#[from] FileError),
+    /// An operating-system error outside files: a socket, the program's own path,
+    /// the working directory.
     #[error("{path}: {source}")]
     Io {
-        /// The file or directory.
+        /// What was used (a socket's address, a path).
         path: PathBuf,
         /// The error.
         source: std::io::Error,

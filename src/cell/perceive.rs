@@ -22,6 +22,7 @@ use super::{stop_requested, ByTrial, CellError, TICK};
 use crate::cloud::segment::SegmentParams;
 use crate::cloud::PointCloud;
 use crate::config::CellConfig;
+use crate::fsio::{FileError, FileOp};
 use crate::geometry::Pose;
 use crate::ipc::{
     monotonic_now_ns, wait_any, CloudTopic, Domain, FitStatus, Fits, ModelFit, Point, Protocol,
@@ -73,10 +74,8 @@ impl ModelSets {
 /// The categories of the databases under `db_dir` (directories with a
 /// `category.json`), sorted.
 pub fn categories(db_dir: &std::path::Path) -> Result<Vec<String>, CellError> {
-    let entries = std::fs::read_dir(db_dir).map_err(|source| CellError::Io {
-        path: db_dir.to_path_buf(),
-        source,
-    })?;
+    let entries = std::fs::read_dir(db_dir)
+        .map_err(|source| FileError::new(FileOp::ListDir, db_dir, source))?;
     let mut names: Vec<String> = entries
         .flatten()
         .filter(|e| e.path().join("category.json").is_file())

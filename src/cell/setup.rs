@@ -7,6 +7,7 @@
 
 use super::CellError;
 use crate::config::CellConfig;
+use crate::fsio::{FileError, FileOp};
 use crate::geometry::{Pose, PoseJson};
 use crate::mesh::procedural::held_apart::{generate_in, Family};
 use crate::mesh::procedural::Category;
@@ -93,19 +94,13 @@ impl TrialSetup {
     pub fn write(&self, run_dir: &Path) -> Result<PathBuf, CellError> {
         let path = TrialSetup::path(run_dir, self.trial_id);
         if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir).map_err(|source| CellError::Io {
-                path: dir.to_path_buf(),
-                source,
-            })?;
+            crate::fsio::create_dir_all(dir)?;
         }
         let text = serde_json::to_string_pretty(self).map_err(|e| CellError::Setup {
             path: path.clone(),
             problem: e.to_string(),
         })?;
-        crate::fsio::write_atomically(&path, text.as_bytes()).map_err(|source| CellError::Io {
-            path: path.clone(),
-            source,
-        })?;
+        crate::fsio::write(&path, text.as_bytes())?;
         Ok(path)
     }
 
@@ -115,7 +110,7 @@ impl TrialSetup {
         let text = match std::fs::read_to_string(&path) {
             Ok(text) => text,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-            Err(source) => return Err(CellError::Io { path, source }),
+            Err(source) => return Err(FileError::new(FileOp::Read, &path, source).into()),
         };
         let setup: TrialSetup = serde_json::from_str(&text).map_err(|e| CellError::Setup {
             path: path.clone(),
@@ -233,10 +228,7 @@ impl TrialSetup {
     /// a user's mesh) is written next to the scene as `object-<trial id>.ply`.
     pub fn write_sim_scene(&self, path: &Path) -> Result<(), CellError> {
         let dir = path.parent().unwrap_or(Path::new("."));
-        std::fs::create_dir_all(dir).map_err(|source| CellError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
+        crate::fsio::create_dir_all(dir)?;
         let (mesh, category, seed) = match self.source {
             ObjectSource::Training => (None, Some(self.category), self.object.seed),
             _ => {
@@ -265,10 +257,7 @@ impl TrialSetup {
             path: path.to_path_buf(),
             problem: e.to_string(),
         })?;
-        crate::fsio::write_atomically(path, text.as_bytes()).map_err(|source| CellError::Io {
-            path: path.to_path_buf(),
-            source,
-        })
+        Ok(crate::fsio::write(path, text.as_bytes())?)
     }
 }
 

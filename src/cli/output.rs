@@ -70,7 +70,8 @@ pub fn error_chain(err: &anyhow::Error) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::path::PathBuf;
+    use crate::fsio::{FileError, FileOp};
+    use std::path::Path;
 
     /// A writer whose reader has gone: every write fails with `BrokenPipe`.
     struct ClosedPipe;
@@ -124,23 +125,22 @@ mod tests {
     #[test]
     fn error_chain_names_each_cause_once() {
         let io = || std::io::Error::new(ErrorKind::NotFound, "no such file (os error 2)");
-        let mesh = crate::mesh::MeshError::Io {
-            path: PathBuf::from("mug.obj"),
-            source: io(),
-        };
+        let mesh =
+            crate::mesh::MeshError::File(FileError::new(FileOp::Read, Path::new("mug.obj"), io()));
         let err = anyhow::Error::new(mesh).context("loading the scene");
         let line = error_chain(&err);
         assert_eq!(
             line,
-            "loading the scene: mug.obj: no such file (os error 2)"
+            "loading the scene: cannot read mug.obj: no such file (os error 2)"
         );
         // anyhow's own `{:#}` repeats the I/O error: what this function is for.
         assert_eq!(occurrences(&format!("{err:#}"), "no such file"), 2);
 
-        let config = crate::config::ConfigError::Read {
-            path: PathBuf::from("robot/cell.toml"),
-            source: io(),
-        };
+        let config = crate::config::ConfigError::Read(FileError::new(
+            FileOp::Read,
+            Path::new("robot/cell.toml"),
+            io(),
+        ));
         let line = error_chain(&anyhow::Error::new(config));
         assert_eq!(
             line,

@@ -2,21 +2,16 @@
 //! extension (`.ply`, `.pcd`), and writes that never leave a half-written file.
 
 use super::PointCloud;
-use crate::fsio::write_atomically;
+use crate::fsio::FileError;
 use crate::mesh::MeshError;
 use std::path::{Path, PathBuf};
 
 /// Errors of reading, writing or making point clouds; file errors name the file.
 #[derive(Debug, thiserror::Error)]
 pub enum CloudError {
-    /// The file could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    /// A file could not be read or written.
+    #[error(transparent)]
+    File(#[from] FileError),
     /// The file is malformed at `location` ("line 12", "point 7, byte offset 300",
     /// "header").
     #[error("{path}: {location}: {problem}")]
@@ -92,7 +87,7 @@ impl From<crate::ply::EncodeError> for InvalidCloud {
 impl From<crate::ply::PlyError> for CloudError {
     fn from(e: crate::ply::PlyError) -> CloudError {
         match e {
-            crate::ply::PlyError::Io { path, source } => CloudError::Io { path, source },
+            crate::ply::PlyError::File(e) => CloudError::File(e),
             crate::ply::PlyError::Parse {
                 path,
                 location,
@@ -145,10 +140,7 @@ impl CloudFormat {
 /// Reads the cloud at `path`, PLY or PCD by extension.
 pub fn read_cloud(path: &Path) -> Result<PointCloud, CloudError> {
     let format = CloudFormat::from_path(path)?;
-    let bytes = std::fs::read(path).map_err(|source| CloudError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = crate::fsio::read(path)?;
     match format {
         CloudFormat::Ply => super::ply::parse_ply_cloud(&bytes, path),
         CloudFormat::Pcd => super::pcd::parse_pcd(&bytes, path),
@@ -170,10 +162,7 @@ pub fn write_cloud(
         path: path.to_path_buf(),
         problem,
     })?;
-    write_atomically(path, &bytes).map_err(|source| CloudError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    Ok(crate::fsio::write(path, &bytes)?)
 }
 
 /// Checks that a cloud is consistent: `width x height` points, and one normal per

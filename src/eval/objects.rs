@@ -27,13 +27,8 @@ pub const MANIFEST_FILE: &str = "objects.toml";
 #[derive(Debug, thiserror::Error)]
 pub enum ObjectsError {
     /// The manifest could not be read.
-    #[error("{path}: cannot read the objects manifest: {source}")]
-    Read {
-        /// The manifest.
-        path: PathBuf,
-        /// Why.
-        source: std::io::Error,
-    },
+    #[error("{}: cannot read the objects manifest: {}", .0.path.display(), .0.source)]
+    Read(crate::fsio::FileError),
     /// The manifest is not valid TOML or has unknown or missing fields.
     #[error("{path}: malformed objects manifest: {message}")]
     Malformed {
@@ -120,10 +115,7 @@ pub struct UserObject {
 /// Reads `<dir>/objects.toml` and loads every mesh it lists.
 pub fn load_objects(dir: &Path) -> Result<Vec<UserObject>, ObjectsError> {
     let path = dir.join(MANIFEST_FILE);
-    let text = std::fs::read_to_string(&path).map_err(|source| ObjectsError::Read {
-        path: path.clone(),
-        source,
-    })?;
+    let text = crate::fsio::read_to_string(&path).map_err(ObjectsError::Read)?;
     let manifest: Manifest = toml::from_str(&text).map_err(|e| ObjectsError::Malformed {
         path: path.clone(),
         message: e.to_string().trim().replace('\n', " "),

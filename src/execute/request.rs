@@ -12,13 +12,8 @@ use std::path::Path;
 #[derive(Debug, thiserror::Error)]
 pub enum RequestError {
     /// The file could not be read.
-    #[error("cannot read plan {path}: {source}")]
-    Read {
-        /// The file.
-        path: std::path::PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    #[error("cannot read plan {}: {}", .0.path.display(), .0.source)]
+    Read(crate::fsio::FileError),
     /// The JSON does not match the schema.
     #[error("plan {path}: {message}")]
     Parse {
@@ -117,10 +112,7 @@ impl ExecutionRequest {
 
     /// Reads a request from a JSON file.
     pub fn load(path: &Path) -> Result<ExecutionRequest, RequestError> {
-        let text = std::fs::read_to_string(path).map_err(|source| RequestError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::fsio::read_to_string(path).map_err(RequestError::Read)?;
         serde_json::from_str(&text).map_err(|e| RequestError::Parse {
             path: path.to_path_buf(),
             message: e.to_string(),

@@ -329,7 +329,7 @@ fn sender_in_domain(
     on_round: &mut dyn FnMut(),
 ) -> Result<BenchSamples, IpcError> {
     let root = domain.root();
-    std::fs::create_dir_all(&root).map_err(io_error(&root))?;
+    crate::fsio::create_dir_all(&root)?;
     let socket_path = root.join("bench.sock");
     let listener = UnixListener::bind(&socket_path).map_err(io_error(&socket_path))?;
 

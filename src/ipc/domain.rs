@@ -7,6 +7,7 @@
 
 use super::services::Services;
 use super::IpcError;
+use crate::fsio::{FileError, FileOp};
 use iceoryx2::config::Config;
 use iceoryx2::node::{Node, NodeState};
 use iceoryx2::prelude::{ipc, CallbackProgression, FileName, SemanticString};
@@ -238,7 +239,7 @@ impl Domain {
         match std::fs::remove_dir_all(&root) {
             Ok(()) => {}
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(source) => return Err(IpcError::Io { path: root, source }),
+            Err(source) => return Err(FileError::new(FileOp::Remove, &root, source).into()),
         }
         Ok(files.len())
     }
@@ -277,10 +278,7 @@ fn remove_file_if_present(path: &Path) -> Result<(), IpcError> {
     match std::fs::remove_file(path) {
         Ok(()) => Ok(()),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
-        Err(source) => Err(IpcError::Io {
-            path: path.to_path_buf(),
-            source,
-        }),
+        Err(source) => Err(FileError::new(FileOp::Remove, path, source).into()),
     }
 }
 
@@ -288,10 +286,7 @@ fn read_dir_if_present(dir: &Path) -> Result<Option<std::fs::ReadDir>, IpcError>
     match std::fs::read_dir(dir) {
         Ok(entries) => Ok(Some(entries)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(source) => Err(IpcError::Io {
-            path: dir.to_path_buf(),
-            source,
-        }),
+        Err(source) => Err(FileError::new(FileOp::ListDir, dir, source).into()),
     }
 }
 

@@ -160,9 +160,12 @@ pub enum IpcError {
         alive: usize,
     },
     /// A file operation on a domain's files failed.
+    #[error(transparent)]
+    File(#[from] crate::fsio::FileError),
+    /// An operating-system error outside files: a socket, a child process, stdin.
     #[error("{path}: {source}")]
     Io {
-        /// The file or directory.
+        /// The socket, program or stream.
         path: PathBuf,
         /// The error.
         source: std::io::Error,

@@ -6,6 +6,7 @@ pub mod procedural;
 pub mod stl;
 pub mod topology;
 
+use crate::fsio::FileError;
 use crate::geometry::Pose;
 use nalgebra::Point3;
 use std::path::{Path, PathBuf};
@@ -50,14 +51,9 @@ impl From<crate::ply::EncodeError> for EncodeError {
 /// Errors of reading, writing or validating a mesh; each names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
-    /// The file could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    /// A file could not be read or written.
+    #[error(transparent)]
+    File(#[from] FileError),
     /// The file's content is malformed at `location` (e.g. "line 12", "face 7").
     #[error("{path}: {location}: {problem}")]
     Parse {

@@ -5,16 +5,14 @@
 //! Coordinates are taken as metres; a caller scales millimetre files.
 
 use super::{MeshError, TriMesh};
+use crate::fsio::{FileError, FileOp};
 use nalgebra::Point3;
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 
 /// Reads an OBJ file and validates the mesh; errors name the file and line.
 pub fn read_obj(path: &Path) -> Result<TriMesh, MeshError> {
-    let file = std::fs::File::open(path).map_err(|source| MeshError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let file = crate::fsio::open(path)?;
     parse_obj(BufReader::new(file), path)
 }
 
@@ -160,10 +158,7 @@ pub fn write_obj(path: &Path, mesh: &TriMesh) -> Result<(), MeshError> {
     let mut bytes = Vec::new();
     write_obj_to(&mut bytes, mesh)
         .and_then(|()| crate::fsio::write_atomically(path, &bytes))
-        .map_err(|source| MeshError::Io {
-            path: path.to_path_buf(),
-            source,
-        })
+        .map_err(|source| FileError::new(FileOp::Write, path, source).into())
 }
 
 #[cfg(test)]

@@ -4,7 +4,6 @@
 //! round-trip exactly.
 
 use super::{EncodeError, MeshError, TriMesh};
-use crate::fsio::write_atomically;
 use crate::ply::{self, Column, Element, Format, Ply, PlyError, Property, ScalarType, Values};
 use nalgebra::Point3;
 use std::path::Path;
@@ -12,7 +11,7 @@ use std::path::Path;
 impl From<PlyError> for MeshError {
     fn from(e: PlyError) -> MeshError {
         match e {
-            PlyError::Io { path, source } => MeshError::Io { path, source },
+            PlyError::File(e) => MeshError::File(e),
             PlyError::Parse {
                 path,
                 location,
@@ -28,10 +27,7 @@ impl From<PlyError> for MeshError {
 
 /// Reads the PLY mesh at `path` (any PLY encoding) and validates it.
 pub fn read_ply_mesh(path: &Path) -> Result<TriMesh, MeshError> {
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = crate::fsio::read(path)?;
     parse_ply_mesh(&bytes, path)
 }
 
@@ -128,10 +124,7 @@ pub fn write_ply_mesh(path: &Path, mesh: &TriMesh, format: Format) -> Result<(),
         path: path.to_path_buf(),
         problem,
     })?;
-    write_atomically(path, &bytes).map_err(|source| MeshError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    Ok(crate::fsio::write(path, &bytes)?)
 }
 
 /// Encodes `mesh` as a PLY file in `format`; fails only when the mesh is too big

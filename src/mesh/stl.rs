@@ -7,7 +7,6 @@
 //! Binary STL stores `f32`, so writing rounds coordinates to `f32`.
 
 use super::{EncodeError, MeshError, TriMesh};
-use crate::fsio::write_atomically;
 use nalgebra::{Point3, Vector3};
 use std::collections::HashMap;
 use std::path::Path;
@@ -19,10 +18,7 @@ const RECORD_BYTES: usize = 50;
 
 /// Reads the STL file at `path` (ASCII or binary) and validates the mesh.
 pub fn read_stl(path: &Path) -> Result<TriMesh, MeshError> {
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = crate::fsio::read(path)?;
     parse_stl(&bytes, path)
 }
 
@@ -46,10 +42,7 @@ pub fn write_stl(path: &Path, mesh: &TriMesh) -> Result<(), MeshError> {
         path: path.to_path_buf(),
         problem,
     })?;
-    write_atomically(path, &bytes).map_err(|source| MeshError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    Ok(crate::fsio::write(path, &bytes)?)
 }
 
 /// Encodes `mesh` (assumed valid) as binary STL; fails only with more triangles

@@ -299,10 +299,7 @@ pub fn fits_from_registrations(
 }
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, PlanError> {
-    let text = std::fs::read_to_string(path).map_err(|source| PlanError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let text = crate::fsio::read_to_string(path)?;
     serde_json::from_str(&text).map_err(|e| PlanError::Parse {
         path: path.to_path_buf(),
         message: e.to_string(),

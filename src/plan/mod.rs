@@ -40,6 +40,7 @@ pub use reach::Reachability;
 pub use seen::{SeenSurface, SeenSurfaceOptions};
 pub use weights::{FitWeight, Weights};
 
+use crate::fsio::FileError;
 use crate::geometry::{Pose, PoseParams};
 use crate::robot::PreshapeRad;
 use std::path::PathBuf;
@@ -141,14 +142,9 @@ pub enum PlanError {
         /// The number of fits.
         count: usize,
     },
-    /// An input file could not be read.
-    #[error("cannot read {path}: {source}")]
-    Read {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    /// A file could not be read or written.
+    #[error(transparent)]
+    File(#[from] FileError),
     /// An input file is malformed.
     #[error("{path}: {message}")]
     Parse {

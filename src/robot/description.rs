@@ -125,10 +125,7 @@ impl RobotDescription {
         let text = if path == Path::new(crate::config::BUILTIN_URDF) {
             crate::config::BUILTIN_URDF_TEXT.to_string()
         } else {
-            std::fs::read_to_string(path).map_err(|source| RobotError::Read {
-                path: path.to_path_buf(),
-                source,
-            })?
+            crate::fsio::read_to_string(path).map_err(RobotError::Read)?
         };
         Self::parse(&text, path, arm_joints)
     }

@@ -14,6 +14,7 @@ pub mod ik;
 pub mod kinematics;
 
 use crate::config::{CellConfig, TableConfig, WorkspaceConfig};
+use crate::fsio::FileError;
 use crate::geometry::Pose;
 use collision::{Collision, CollisionModel};
 use description::RobotDescription;
@@ -30,13 +31,8 @@ pub const HAND_JOINTS: [&str; 4] = ["bh_j11", "bh_j12", "bh_j22", "bh_j32"];
 #[derive(Debug, thiserror::Error)]
 pub enum RobotError {
     /// The URDF could not be read.
-    #[error("cannot read URDF {path}: {source}")]
-    Read {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    #[error("cannot read URDF {}: {}", .0.path.display(), .0.source)]
+    Read(FileError),
     /// The URDF does not parse or is inconsistent.
     #[error("URDF {path}: {problem}")]
     Urdf {

@@ -21,6 +21,7 @@
 
 pub mod page;
 
+use crate::fsio::FileError;
 use crate::trial::log::TrialRecord;
 use crate::trial::report::Report;
 use crate::trial::{GradeSource, Grading, TrialError, TrialId, TrialLog, UtcTimestamp};
@@ -54,14 +55,9 @@ pub enum ServeError {
         /// What is wrong.
         detail: String,
     },
-    /// The token file could not be read.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    /// A file could not be read or written.
+    #[error(transparent)]
+    File(#[from] FileError),
     /// The trial log failed.
     #[error(transparent)]
     Trial(#[from] TrialError),
@@ -109,10 +105,7 @@ pub fn check_token(token: &str) -> Result<(), ServeError> {
 
 /// Reads the token from the first line of `path`, checked.
 pub fn read_token_file(path: &Path) -> Result<String, ServeError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ServeError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let text = crate::fsio::read_to_string(path)?;
     let token = text.lines().next().unwrap_or("").trim().to_string();
     check_token(&token)?;
     Ok(token)

@@ -19,6 +19,7 @@
 //! ```
 
 use crate::config::{CellConfig, TableConfig};
+use crate::fsio::FileError;
 use crate::geometry::{GeometryError, Pose, PoseJson};
 use crate::mesh::procedural::{generate, Category};
 use crate::mesh::{MeshError, TriMesh};
@@ -29,13 +30,8 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     /// The scene file could not be read.
-    #[error("cannot read scene {path}: {error}")]
-    Read {
-        /// The scene file.
-        path: PathBuf,
-        /// The I/O error (in the message, not chained, so it prints once).
-        error: std::io::Error,
-    },
+    #[error("cannot read scene {}: {}", .0.path.display(), .0.source)]
+    Read(FileError),
     /// The scene file is not valid TOML for the scene schema.
     #[error("scene {path}: {message}")]
     Parse {
@@ -265,10 +261,7 @@ pub struct LoadedScene {
 
 /// Reads a scene file; tables and camera pose default to `config`'s.
 pub fn load_scene(path: &Path, config: &CellConfig) -> Result<LoadedScene, SceneError> {
-    let text = std::fs::read_to_string(path).map_err(|error| SceneError::Read {
-        path: path.to_path_buf(),
-        error,
-    })?;
+    let text = crate::fsio::read_to_string(path).map_err(SceneError::Read)?;
     parse_scene(&text, path, config)
 }
 

@@ -36,6 +36,7 @@
 //!   a device's cycle never waits for a mesh to load.
 
 use crate::config::CellConfig;
+use crate::fsio::{FileError, FileOp};
 use crate::geometry::Pose;
 use crate::quality::autograsp::{
     close_hand, evaluate_grasp, retreat_until_clear, AutoGraspOptions, FingerStop, GraspObject,
@@ -81,14 +82,9 @@ pub enum WorldError {
         /// The offending value.
         value: f64,
     },
-    /// A shared-state file could not be opened.
-    #[error("shared simulator state {path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    /// A shared-state file or directory could not be opened or created.
+    #[error("shared simulator state {}: {}", .0.path.display(), .0.source)]
+    Io(crate::fsio::FileError),
 }
 
 /// One object of the world.
@@ -411,10 +407,7 @@ impl Cell {
             .create(true)
             .truncate(false)
             .open(path)
-            .map_err(|source| WorldError::Io {
-                path: path.to_path_buf(),
-                source,
-            })?;
+            .map_err(|source| WorldError::Io(FileError::new(FileOp::Read, path, source)))?;
         Ok(Cell::File(Arc::new(file)))
     }
 
@@ -500,10 +493,7 @@ impl WorldLink {
     /// State shared between processes: `palm.state` and `hand.state` in `dir`
     /// (created if missing).
     pub fn files(dir: &Path) -> Result<WorldLink, WorldError> {
-        std::fs::create_dir_all(dir).map_err(|source| WorldError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
+        crate::fsio::create_dir_all(dir).map_err(WorldError::Io)?;
         Ok(WorldLink {
             palm: Cell::file(&dir.join("palm.state"))?,
             hand: Cell::file(&dir.join("hand.state"))?,

@@ -274,10 +274,7 @@ impl TrialLog {
         csv_path: &Path,
         at: UtcTimestamp,
     ) -> Result<ImportSummary, TrialError> {
-        let text = std::fs::read_to_string(csv_path).map_err(|source| TrialError::Io {
-            path: csv_path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::fsio::read_to_string(csv_path)?;
         self.import_grades(&text, csv_path, at)
     }
 

@@ -296,13 +296,7 @@ pub fn to_glb(scene: &TrialScene, path_for_errors: &Path) -> Result<Vec<u8>, Tri
 pub fn write_glb(scene: &TrialScene, path: &Path) -> Result<(), TrialError> {
     let bytes = to_glb(scene, path)?;
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|source| TrialError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
+        crate::fsio::create_dir_all(dir)?;
     }
-    crate::fsio::write_atomically(path, &bytes).map_err(|source| TrialError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    Ok(crate::fsio::write(path, &bytes)?)
 }

@@ -18,6 +18,7 @@
 use super::grade::{FailureCause, Grade, GradeSource, Grading};
 use super::time::UtcTimestamp;
 use super::{software_version, TrialError};
+use crate::fsio::{FileError, FileOp};
 use crate::geometry::PoseJson;
 use rusqlite::{
     params, Connection, OpenFlags, OptionalExtension, Transaction, TransactionBehavior,
@@ -215,21 +216,13 @@ fn check_sqlite_header(path: &Path) -> Result<(), TrialError> {
     let mut file = match std::fs::File::open(path) {
         Ok(f) => f,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
-        Err(source) => {
-            return Err(TrialError::Io {
-                path: path.to_path_buf(),
-                source,
-            })
-        }
+        Err(source) => return Err(FileError::new(FileOp::Read, path, source).into()),
     };
     let mut header = Vec::with_capacity(16);
     file.by_ref()
         .take(16)
         .read_to_end(&mut header)
-        .map_err(|source| TrialError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        .map_err(FileError::of(FileOp::Read, path))?;
     if header.is_empty() || header == b"SQLite format 3\0" {
         return Ok(());
     }
@@ -256,10 +249,7 @@ impl TrialLog {
     pub fn open(path: impl AsRef<Path>) -> Result<Self, TrialError> {
         let path = path.as_ref();
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).map_err(|source| TrialError::Io {
-                path: dir.to_path_buf(),
-                source,
-            })?;
+            crate::fsio::create_dir_all(dir)?;
         }
         Self::open_with(path, OpenFlags::SQLITE_OPEN_CREATE, MIGRATIONS)
     }

@@ -36,6 +36,7 @@ pub use report::{Report, Scope};
 pub use stats::{sign_test, sign_test_p_value, SignTest};
 pub use time::UtcTimestamp;
 
+use crate::fsio::FileError;
 use std::path::PathBuf;
 
 /// Errors of the trial log, grading, import/export and reports.
@@ -92,13 +93,8 @@ pub enum TrialError {
         source: rusqlite::Error,
     },
     /// A file could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    File(#[from] FileError),
     /// A grade refers to a trial id that is not in the log.
     #[error("{path}: no trial with id {id} in the log")]
     UnknownTrial {

@@ -426,10 +426,7 @@ pub fn render(scene: &TrialScene) -> Canvas {
 /// Renders `scene` and writes it as PNG to `path` (atomically).
 pub fn write_png(scene: &TrialScene, path: &Path) -> Result<(), TrialError> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|source| TrialError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
+        crate::fsio::create_dir_all(dir)?;
     }
     render(scene).save_png(path)
 }

@@ -5,7 +5,6 @@
 
 use super::report::Report;
 use super::TrialError;
-use crate::fsio::write_atomically;
 use std::path::Path;
 
 /// An RGB colour.
@@ -428,10 +427,7 @@ impl Canvas {
 
     /// Writes the canvas to `path` as PNG (atomically: temporary file, then rename).
     pub fn save_png(&self, path: &Path) -> Result<(), TrialError> {
-        write_atomically(path, &self.to_png(path)?).map_err(|source| TrialError::Io {
-            path: path.to_path_buf(),
-            source,
-        })
+        Ok(crate::fsio::write(path, &self.to_png(path)?)?)
     }
 }
 
@@ -643,10 +639,7 @@ pub fn cause_chart(report: &Report) -> (Canvas, Vec<Bar>) {
 /// Writes `outcomes.png` and `failure_causes.png` into `dir` (created if needed);
 /// returns their paths.
 pub fn write_charts(report: &Report, dir: &Path) -> Result<Vec<std::path::PathBuf>, TrialError> {
-    std::fs::create_dir_all(dir).map_err(|source| TrialError::Io {
-        path: dir.to_path_buf(),
-        source,
-    })?;
+    crate::fsio::create_dir_all(dir)?;
     let mut written = Vec::new();
     for (name, (canvas, _)) in [
         ("outcomes.png", outcome_chart(report)),

@@ -11,6 +11,7 @@
 
 use super::{BusState, CanBus, CanError, CanFrame};
 use crate::clock::{Clock, SystemClock};
+use crate::fsio::{FileError, FileOp};
 use std::fs::File;
 use std::io::{LineWriter, Write};
 use std::path::{Path, PathBuf};
@@ -54,10 +55,8 @@ impl<B: CanBus> CandumpBus<B> {
         path: &Path,
         clock: Arc<dyn Clock>,
     ) -> Result<CandumpBus<B>, CanError> {
-        let file = File::create(path).map_err(|source| CanError::Candump {
-            path: path.to_path_buf(),
-            error: source,
-        })?;
+        let file = File::create(path)
+            .map_err(|source| CanError::Candump(FileError::new(FileOp::Write, path, source)))?;
         Ok(CandumpBus {
             inner,
             writer: LineWriter::new(file),
@@ -73,10 +72,8 @@ impl<B: CanBus> CandumpBus<B> {
 
     fn log(&mut self, frame: &CanFrame) -> Result<(), CanError> {
         let line = candump_line(self.clock.now(), self.inner.interface(), frame);
-        writeln!(self.writer, "{line}").map_err(|source| CanError::Candump {
-            path: self.path.clone(),
-            error: source,
-        })
+        writeln!(self.writer, "{line}")
+            .map_err(|source| CanError::Candump(FileError::new(FileOp::Write, &self.path, source)))
     }
 }
 

@@ -27,7 +27,7 @@ pub use virtual_bus::{
     Corruption, FaultConfig, FaultCounts, IdleProbe, VirtualBus, VirtualEndpoint,
 };
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Duration;
 
 /// The longest a backend lets [`CanBus::send`] block before reporting
@@ -116,13 +116,8 @@ pub enum CanError {
         problem: PacketError,
     },
     /// Writing the candump log failed.
-    #[error("candump log {path}: {error}")]
-    Candump {
-        /// The log file.
-        path: PathBuf,
-        /// The I/O error.
-        error: std::io::Error,
-    },
+    #[error("candump log {}: {}", .0.path.display(), .0.source)]
+    Candump(crate::fsio::FileError),
 }
 
 /// What is wrong with a packet from the cross-process hub ([`CanError::BadPacket`]).

@@ -19,6 +19,7 @@
 use super::gravity::AccelCounts;
 use super::registration::{Registration, ZeroPlane};
 use super::KinectError;
+use crate::fsio::{FileError, FileOp};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -39,18 +40,15 @@ pub struct FakenectWriter {
     records: usize,
 }
 
-fn io_error(path: &Path, source: std::io::Error) -> KinectError {
-    KinectError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
+fn io_error(op: FileOp, path: &Path, source: std::io::Error) -> KinectError {
+    FileError::new(op, path, source).into()
 }
 
 impl FakenectWriter {
     /// Creates `dir` (and its parents) and its index; refuses a directory that
     /// already holds a recording, as libfreenect's `record` does.
     pub fn create(dir: &Path) -> Result<FakenectWriter, KinectError> {
-        std::fs::create_dir_all(dir).map_err(|e| io_error(dir, e))?;
+        crate::fsio::create_dir_all(dir)?;
         let index_path = dir.join(INDEX_FILE);
         let file = std::fs::OpenOptions::new()
             .write(true)
@@ -63,7 +61,7 @@ impl FakenectWriter {
                         problem: "a recording is already there (use another directory)".into(),
                     }
                 } else {
-                    io_error(&index_path, e)
+                    io_error(FileOp::Write, &index_path, e)
                 }
             })?;
         Ok(FakenectWriter {
@@ -92,11 +90,11 @@ impl FakenectWriter {
         let mut bytes = Vec::with_capacity(header.len() + data.len());
         bytes.extend_from_slice(header);
         bytes.extend_from_slice(data);
-        std::fs::write(&path, bytes).map_err(|e| io_error(&path, e))?;
+        std::fs::write(&path, bytes).map_err(|e| io_error(FileOp::Write, &path, e))?;
         // The index line goes last: a reader never meets a name without its file.
         writeln!(self.index, "{name}")
             .and_then(|()| self.index.flush())
-            .map_err(|e| io_error(&self.dir.join(INDEX_FILE), e))?;
+            .map_err(|e| io_error(FileOp::Write, &self.dir.join(INDEX_FILE), e))?;
         self.records += 1;
         Ok(())
     }
@@ -157,7 +155,7 @@ impl FakenectWriter {
         });
         let path = self.dir.join(DEVICE_FILE);
         let text = serde_json::to_string_pretty(&json).unwrap_or_default();
-        std::fs::write(&path, text).map_err(|e| io_error(&path, e))
+        std::fs::write(&path, text).map_err(|e| io_error(FileOp::Write, &path, e))
     }
 
     /// Number of records written.
@@ -249,7 +247,7 @@ impl RawFrame {
     /// before the one it keeps), with its `device.json`.
     pub fn write_recording(&self, dir: &Path, repeat: usize) -> Result<(), KinectError> {
         if dir.exists() {
-            std::fs::remove_dir_all(dir).map_err(|e| io_error(dir, e))?;
+            std::fs::remove_dir_all(dir).map_err(|e| io_error(FileOp::Remove, dir, e))?;
         }
         let mut w = FakenectWriter::create(dir)?;
         w.registration(&self.registration)?;
@@ -266,7 +264,7 @@ pub fn read_registration(dir: &Path) -> Result<Option<Registration>, KinectError
     let text = match std::fs::read_to_string(&path) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(io_error(&path, e)),
+        Err(e) => return Err(io_error(FileOp::Read, &path, e)),
     };
     let bad = |problem: String| KinectError::Recording {
         path: path.clone(),
@@ -310,7 +308,7 @@ pub struct IndexEntry {
 /// and names a file that exists.
 pub fn read_index(dir: &Path) -> Result<Vec<IndexEntry>, KinectError> {
     let path = dir.join(INDEX_FILE);
-    let text = std::fs::read_to_string(&path).map_err(|e| io_error(&path, e))?;
+    let text = crate::fsio::read_to_string(&path)?;
     text.lines()
         .enumerate()
         .map(|(i, line)| {

@@ -94,12 +94,7 @@ pub enum KinectError {
         /// What is wrong.
         problem: String,
     },
-    /// A file operation failed.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file or directory.
-        path: PathBuf,
-        /// The error.
-        source: std::io::Error,
-    },
+    /// A file could not be read or written.
+    #[error(transparent)]
+    File(#[from] crate::fsio::FileError),
 }
