@@ -838,11 +838,9 @@ mod tests {
 
     #[test]
     fn missing_sibling_binaries_are_named_with_the_command_that_builds_them() {
-        let dir = std::env::temp_dir().join(format!("graspcell-bins-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("bins").unwrap();
         std::fs::write(dir.join("cell-camera"), b"").unwrap();
         let err = check_binaries(&options_in(&dir)).unwrap_err().to_string();
-        std::fs::remove_dir_all(&dir).unwrap();
         assert!(
             err.contains("cell-sim-hand") && err.contains("cell-plan"),
             "{err}"

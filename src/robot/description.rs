@@ -504,14 +504,10 @@ mod tests {
     }
 
     fn load_text(name: &str, text: &str, arm: &[String]) -> Result<RobotDescription, RobotError> {
-        let dir =
-            std::env::temp_dir().join(format!("graspcell-urdf-{}-{name}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("urdf").unwrap();
         let path = dir.join(format!("{name}.urdf"));
         std::fs::write(&path, text).unwrap();
-        let result = RobotDescription::load(&path, arm);
-        std::fs::remove_dir_all(&dir).ok();
-        result
+        RobotDescription::load(&path, arm)
     }
 
     #[test]

@@ -123,8 +123,7 @@ mod tests {
 
     #[test]
     fn logs_sent_and_received_frames_in_order() {
-        let dir = std::env::temp_dir().join(format!("graspcell-candump-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::fsio::TempDir::new("candump").unwrap();
         let path = dir.join("log.txt");
         let bus = VirtualBus::new("candump-unit");
         let clock = ManualClock::starting_at(Duration::from_secs(1_700_000_000));
@@ -145,6 +144,5 @@ mod tests {
             "(1700000000.000000) inproc:candump-unit 00B#30\n\
              (1700000000.001500) inproc:candump-unit 566#B00001000000\n"
         );
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -352,8 +352,8 @@ mod tests {
 
     #[test]
     fn a_written_recording_reads_back_in_fakenects_format() {
-        let dir = std::env::temp_dir().join(format!("gc-fakenect-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        let tmp = crate::fsio::TempDir::new("fakenect").unwrap();
+        let dir = tmp.join("recording");
         let mut w = FakenectWriter::create(&dir).unwrap();
         let raw: Vec<u16> = (0..6).map(|i| 600 + i).collect();
         w.depth(1.5, 10, 3, 2, &raw).unwrap();
@@ -389,6 +389,5 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("already"));
-        std::fs::remove_dir_all(&dir).ok();
     }
 }
