@@ -166,6 +166,16 @@ fn cli_closes_the_hand_around_a_cylinder_file() {
     assert_eq!(v["start_collision"]["link"], "bh_palm");
     assert_eq!(v["start_collision"]["with"], "object");
     assert_eq!(v["force_closure"], false);
+    // Approached to contact, the lift test starts where the approach stopped
+    // (clear of the cylinder), not at the colliding --pose.
+    let v = run(&into, &["--approach-to-contact", "--lift"]);
+    assert_eq!(v["collision_at_start"], false, "{v}");
+    assert!(
+        v["approach"]["beyond_plan_m"].as_f64().unwrap() < -0.004,
+        "{v}"
+    );
+    assert_ne!(v["lift"]["rule"], "start_collision", "{v}");
+    assert!(v["lift"]["steps"].as_u64().unwrap() > 0, "{v}");
 
     // With a table through the fingers: reported as the table.
     let v = run(&side_pose(radius, 1e-4), &["--table-z", "0.0"]);

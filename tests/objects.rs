@@ -5,6 +5,7 @@ use clap::Parser;
 use graspcell::cli::{run, Cli};
 use graspcell::fsio::TempDir;
 use graspcell::mesh::obj::{parse_obj, read_obj, write_obj};
+use graspcell::mesh::procedural::held_apart::{generate_in, held_apart_instance, Family};
 use graspcell::mesh::procedural::{
     generate, instance_seed, Category, HandleShape, MugParams, Params,
 };
@@ -448,6 +449,40 @@ fn cli_generates_meshes_and_params() {
         assert_eq!(mesh.triangles, generate(Category::Mug, seed).0.triangles);
         let height = entry["params"]["height_m"].as_f64().unwrap();
         assert!((size(&mesh)[2] - height).abs() < 1e-9);
+    }
+    // The held-apart family: the objects of `cell eval novel`, named as its
+    // trials name them.
+    let held = dir.join("held");
+    let cli = Cli::try_parse_from([
+        "cell",
+        "objects",
+        "generate",
+        "--category",
+        "mug",
+        "--count",
+        "2",
+        "--family",
+        "held-apart",
+        "--out",
+        held.to_str().unwrap(),
+    ])
+    .unwrap();
+    run(cli).unwrap();
+    let listing: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(held.join("params.json")).unwrap()).unwrap();
+    assert_eq!(listing["family"], "held-apart");
+    for i in 0..2u64 {
+        let (name, seed) = held_apart_instance(Category::Mug, 1, i);
+        let entry = &listing["instances"][i as usize];
+        assert_eq!(entry["file"], format!("{name}.obj"));
+        assert_eq!(entry["seed"].as_u64(), Some(seed));
+        let mesh = read_obj(&held.join(format!("{name}.obj"))).unwrap();
+        assert_eq!(
+            mesh.triangles,
+            generate_in(Family::HeldApart, Category::Mug, seed)
+                .0
+                .triangles
+        );
     }
     let bad = Cli::try_parse_from([
         "cell",

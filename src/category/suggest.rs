@@ -285,7 +285,7 @@ impl Template {
     ) -> Option<(Pose, HandPose)> {
         let spread =
             (self.spread_rad + u[5]).clamp(hand.spread_limits_rad.0, hand.spread_limits_rad.1);
-        let (flex_lo, flex_hi) = crate::robot::FLEX_LIMITS_RAD;
+        let (flex_lo, flex_hi) = hand.flex_limits_rad();
         let preshape =
             PreshapeRad([(self.preshape_rad + u[7]).clamp(flex_lo, flex_hi); 3]).at_spread(spread);
         let rotation = self.orientation * UnitQuaternion::from_euler_angles(u[2], u[3], u[4]);

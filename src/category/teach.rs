@@ -186,12 +186,7 @@ impl TeachFile {
         hand: &HandModel,
     ) -> Result<Vec<CheckedGrasp>, CategoryError> {
         let spread_limits_rad = hand.spread_limits_rad;
-        let flex_limits_rad = hand
-            .fingers
-            .iter()
-            .fold((f64::MIN, f64::MAX), |(lo, hi), f| {
-                (lo.max(f.flex_limits_rad.0), hi.min(f.flex_limits_rad.1))
-            });
+        let flex_limits_rad = hand.flex_limits_rad();
         if let Some(c) = self.category {
             if c != category {
                 return Err(CategoryError::CategoryMismatch {

@@ -520,7 +520,8 @@ mod tests {
         };
         let seen = SeenSurface::new(&hand, &seen_cloud, options).unwrap();
         assert!(
-            seen.intrusion(&free.pose, free.spread_rad).is_some(),
+            seen.intrusion(&free.pose, &free.preshape_rad.at_spread(free.spread_rad))
+                .is_some(),
             "test setup: the points block the free plan's approach"
         );
         match plan_trial(
@@ -531,7 +532,10 @@ mod tests {
             &request(Protocol::Cell),
             &blocked,
         ) {
-            Ok(clear) => assert_eq!(seen.intrusion(&clear.pose, clear.spread_rad), None),
+            Ok(clear) => assert_eq!(
+                seen.intrusion(&clear.pose, &clear.preshape_rad.at_spread(clear.spread_rad)),
+                None
+            ),
             Err(failure) => assert_eq!(failure.cause, FailureCause::Reachability),
         }
         let paper = Protocol::PaperRobot;

@@ -199,16 +199,8 @@ pub fn novel_object_in(
             ObjectSource::Training,
         ),
         Family::HeldApart => {
-            let seed = crate::mesh::procedural::held_apart::held_apart_seed(
-                category,
-                set_seed ^ 0x6865_6c64_6170_6172,
-                index,
-            );
-            let kind = crate::mesh::procedural::held_apart::generate_held_apart(category, seed).2;
-            let name = match kind {
-                Some(k) => format!("{}-{set_seed}-{index}", k.name()),
-                None => format!("{category}-novel-{set_seed}-{index}"),
-            };
+            let (name, seed) =
+                crate::mesh::procedural::held_apart::held_apart_instance(category, set_seed, index);
             (
                 ObjectRef {
                     name,

@@ -1,6 +1,8 @@
 //! `cell objects generate`: procedural category models written as mesh files.
 
-use crate::mesh::procedural::{generate, instance_seed, Category, Params};
+use super::eval::FamilyChoice;
+use crate::mesh::procedural::held_apart::{generate_in, held_apart_instance, Family};
+use crate::mesh::procedural::{instance_seed, Category, Params};
 use crate::mesh::topology::{bounding_box, signed_volume};
 use crate::mesh::{write_mesh, MeshFormat};
 use anyhow::Context;
@@ -29,6 +31,12 @@ pub struct GenerateArgs {
     /// Seed of the set; instance i uses a seed derived from (seed, i).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Which shapes: the databases' own generator (files `mug_000.obj`, ...), or
+    /// the held-apart shapes of `cell eval novel` (files named as its trials name
+    /// the objects, `squat-mug-1-0.obj` for set 1, instance 0), so that a trial's
+    /// object can be closed on again with `cell quality --object`.
+    #[arg(long, value_enum, default_value_t = FamilyChoice::Training)]
+    pub family: FamilyChoice,
     /// Output directory (created if missing).
     #[arg(long)]
     pub out: PathBuf,
@@ -56,6 +64,7 @@ struct Instance {
 #[derive(Debug, Serialize)]
 struct Listing {
     category: Category,
+    family: &'static str,
     seed: u64,
     count: usize,
     instances: Vec<Instance>,
@@ -80,9 +89,16 @@ fn generate_set(args: GenerateArgs) -> anyhow::Result<ExitCode> {
     progress.set_message(format!("generating {}", args.category));
     let mut instances = Vec::with_capacity(args.count);
     for index in 0..args.count {
-        let seed = instance_seed(args.seed, index as u64);
-        let (mesh, params) = generate(args.category, seed);
-        let file = format!("{}_{index:03}.{}", args.category, args.format.extension());
+        let family = Family::from(args.family);
+        let (stem, seed) = match family {
+            Family::Training => (
+                format!("{}_{index:03}", args.category),
+                instance_seed(args.seed, index as u64),
+            ),
+            Family::HeldApart => held_apart_instance(args.category, args.seed, index as u64),
+        };
+        let (mesh, params) = generate_in(family, args.category, seed);
+        let file = format!("{stem}.{}", args.format.extension());
         write_mesh(&args.out.join(&file), &mesh)?;
         let (lo, hi) = bounding_box(&mesh).context("generated an empty mesh")?;
         tracing::info!(%file, seed, triangles = mesh.triangles.len(), "wrote instance");
@@ -100,6 +116,7 @@ fn generate_set(args: GenerateArgs) -> anyhow::Result<ExitCode> {
     progress.finish_and_clear();
     let listing = Listing {
         category: args.category,
+        family: Family::from(args.family).name(),
         seed: args.seed,
         count: args.count,
         instances,

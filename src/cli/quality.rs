@@ -244,9 +244,11 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
             ..PhysicsOptions::default()
         };
         let body = PhysicsObject::new(&mesh, object, &options)?;
+        // The hand closes where the approach stopped, as the executor's does.
+        let closed_at = e.approach.as_ref().map_or(pose, |a| a.object_from_palm);
         let scene = LiftScene {
             base_from_object: crate::geometry::Pose::identity(),
-            base_from_palm: pose,
+            base_from_palm: closed_at,
             preshape,
             table_height_m: args.table_z,
         };

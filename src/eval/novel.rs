@@ -36,7 +36,7 @@ use crate::quality::approach::{approach_to_contact, ApproachOptions};
 use crate::quality::autograsp::{open_hand_collision, GraspObject};
 use crate::register::{ModelSet, RegisterParams};
 use crate::robot::hand::HandModel;
-use crate::robot::{HandPose, Robot};
+use crate::robot::{HandPose, PreshapeRad, Robot};
 use crate::sim::camera::DepthCamera;
 use crate::sim::lab::{LabDraw, LabErrors};
 use crate::sim::observer::{Agreement, Attempt, Observation, Observer};
@@ -203,9 +203,13 @@ pub struct NovelTrial {
     pub note: String,
     /// The executed palm pose, when executed.
     pub palm: Option<PoseJson>,
-    /// The executed spread (rad), when executed: with `palm` and the object's
-    /// pose, `cell quality --object … --pose … --spread … --lift` replays the grade.
+    /// The executed spread (rad), when executed: with `palm`, `preshape_rad` and
+    /// the object's pose, `cell quality --object … --pose … --spread …
+    /// --preshape-rad … --lift` replays the grade.
     pub spread_rad: Option<f64>,
+    /// The executed pre-shape (each finger's flex before the approach, rad), when
+    /// executed.
+    pub preshape_rad: Option<PreshapeRad>,
     /// Best fit's origin from the object's true origin (mm), when any model registered.
     pub best_fit_offset_mm: Option<f64>,
     /// Planning time of this method (ms).
@@ -822,6 +826,7 @@ impl<'a> NovelRun<'a> {
             note: seen.note,
             palm: palm.map(|(p, _)| PoseJson::from(&p)),
             spread_rad: palm.map(|(_, hand)| hand.spread_rad),
+            preshape_rad: palm.map(|(_, hand)| PreshapeRad(hand.flex_rad)),
             best_fit_offset_mm: placed.best_fit_offset_mm,
             plan_ms,
         })
@@ -872,12 +877,13 @@ impl<'a> NovelRun<'a> {
             Some(q) => self.cell.robot.arm().palm(&placed.lab.executed_joints(&q)),
             None => grasp.pose,
         };
+        let preshape = grasp.preshape_rad.at_spread(grasp.spread_rad);
         let palm = executed_palm(
             self.cell.hand,
             &placed.grasp_object,
             &placed.base_from_object,
             &reached,
-            &grasp.preshape_rad.at_spread(grasp.spread_rad),
+            &preshape,
             self.approach.as_ref(),
         );
         (
@@ -887,7 +893,7 @@ impl<'a> NovelRun<'a> {
                 preshape_rad: grasp.preshape_rad,
                 best_fit: placed.best_fit,
             },
-            Some((palm, grasp.preshape_rad.at_spread(grasp.spread_rad))),
+            Some((palm, preshape)),
         )
     }
 }
@@ -932,6 +938,7 @@ mod tests {
             note: String::new(),
             palm: None,
             spread_rad: None,
+            preshape_rad: None,
             best_fit_offset_mm: None,
             plan_ms: 1.0,
         }

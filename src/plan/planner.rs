@@ -41,8 +41,9 @@
 //!    on it. The best repaired pose is the answer, confirmed by the full check and
 //!    reported with the unconstrained optimum it replaces.
 //!
-//! The hand is open with the spread of the **dominant grasp** — the example grasp
-//! whose term of eq. 2 is largest at the pose — at both the grasp and the pre-grasp.
+//! The hand is in the pre-shape (open for most grasps) and at the spread of the
+//! **dominant grasp** — the example grasp whose term of eq. 2 is largest at the
+//! pose — at both the grasp and the pre-grasp.
 //!
 //! **Best single** (the baseline): the model with the largest fit weight `phi` that
 //! has a grasp of the task; of its grasps of the task the one of highest quality `q`
@@ -321,13 +322,6 @@ pub fn pregrasp_pose(grasp: &Pose, offset_m: f64) -> Pose {
     grasp * Translation3::new(0.0, 0.0, -offset_m)
 }
 
-fn open_hand(spread_rad: f64) -> HandPose {
-    HandPose {
-        spread_rad,
-        flex_rad: [0.0; 3],
-    }
-}
-
 /// IK solutions of a feasible grasp and its pre-grasp.
 #[derive(Debug, Clone, Copy)]
 struct Feasible {
@@ -350,19 +344,18 @@ impl Checker<'_> {
     fn check(
         &mut self,
         pose: &Pose,
-        spread_rad: f64,
+        hand: &HandPose,
         seeds: &[ArmJoints],
         pre_seeds: &[ArmJoints],
         quick: bool,
     ) -> Result<Feasible, Infeasible> {
-        let hand = open_hand(spread_rad);
         let fail = |stage| {
             move |u: crate::robot::Unreachable| Infeasible {
                 stage,
                 reason: Blocked::Unreachable(u.reason),
             }
         };
-        if let Some(hit) = self.seen.and_then(|s| s.intrusion(pose, spread_rad)) {
+        if let Some(hit) = self.seen.and_then(|s| s.intrusion(pose, hand)) {
             return Err(Infeasible {
                 stage: Stage::Grasp,
                 reason: Blocked::SeenSurface(hit),
@@ -370,9 +363,9 @@ impl Checker<'_> {
         }
         let reach = |palm: &Pose, seeds: &[ArmJoints]| {
             if quick {
-                self.reach.reach_near(palm, &hand, seeds)
+                self.reach.reach_near(palm, hand, seeds)
             } else {
-                self.reach.reach(palm, &hand, seeds)
+                self.reach.reach(palm, hand, seeds)
             }
         };
         self.checks += 1;
@@ -391,15 +384,14 @@ impl Checker<'_> {
     fn repair(
         &mut self,
         pose: &Pose,
-        spread_rad: f64,
+        hand: &HandPose,
         seeds: &[ArmJoints],
         pre_seeds: &[ArmJoints],
     ) -> Option<(Pose, Feasible)> {
-        let hand = open_hand(spread_rad);
         self.checks += 1;
-        let (reached, grasp) = self.reach.repair_near(pose, &hand, seeds)?;
+        let (reached, grasp) = self.reach.repair_near(pose, hand, seeds)?;
         if let Some(seen) = self.seen {
-            if seen.intrusion(&reached, spread_rad).is_some() {
+            if seen.intrusion(&reached, hand).is_some() {
                 return None;
             }
         }
@@ -408,7 +400,7 @@ impl Checker<'_> {
         let pre_seeds: Vec<ArmJoints> = std::iter::once(grasp.joints)
             .chain(pre_seeds.iter().copied())
             .collect();
-        let pregrasp = self.reach.reach_near(&pre, &hand, &pre_seeds).ok()?;
+        let pregrasp = self.reach.reach_near(&pre, hand, &pre_seeds).ok()?;
         Some((reached, Feasible { grasp, pregrasp }))
     }
 }
@@ -448,8 +440,10 @@ impl Problem<'_> {
         }
     }
 
-    fn spread_at(&self, pose: &Pose) -> f64 {
-        self.grasps[self.objective.dominant_grasp(pose)].spread_rad
+    /// The hand at the grasp: the dominant grasp's pre-shape at its spread.
+    fn hand_at(&self, pose: &Pose) -> HandPose {
+        let dominant = &self.grasps[self.objective.dominant_grasp(pose)];
+        dominant.preshape_rad.at_spread(dominant.spread_rad)
     }
 
     fn chart(&self, centre: &Pose) -> Chart {
@@ -514,7 +508,7 @@ impl Problem<'_> {
                     let seeds = [last, best.1, feasible].map(|f| f.grasp.joints);
                     let pre_seeds = [last, best.1, feasible].map(|f| f.pregrasp.joints);
                     let Some((reached, f)) =
-                        checker.repair(&pose, self.spread_at(&pose), &seeds, &pre_seeds)
+                        checker.repair(&pose, &self.hand_at(&pose), &seeds, &pre_seeds)
                     else {
                         return f64::INFINITY;
                     };
@@ -658,7 +652,7 @@ pub fn plan_with(
         None => problem.planned(best.pose, Ok(None)),
         Some(checker) => {
             let pose = best.pose;
-            match checker.check(&pose, problem.spread_at(&pose), &[], &[], false) {
+            match checker.check(&pose, &problem.hand_at(&pose), &[], &[], false) {
                 Ok(f) => problem.planned(pose, Ok(Some(f))),
                 Err(why) if !options.repair => problem.planned(pose, Err(why)),
                 Err(why) => {
@@ -789,7 +783,7 @@ fn best_reachable(
     // First of all, the implementation's own projections of the optimum (its grasp,
     // and its pre-grasp moved forward by the offset).
     let pose = optimum.pose;
-    let hand = open_hand(problem.spread_at(&pose));
+    let hand = problem.hand_at(&pose);
     let offset = Translation3::new(0.0, 0.0, options.pregrasp_offset_m);
     let mut projected = Vec::new();
     for (target, back) in [
@@ -841,7 +835,7 @@ fn best_reachable(
             checked.push(point.pose);
             budget -= 1;
             if let Ok(f) =
-                checker.check(&point.pose, problem.spread_at(&point.pose), &[], &[], false)
+                checker.check(&point.pose, &problem.hand_at(&point.pose), &[], &[], false)
             {
                 feasible.push((point, f));
             }
@@ -877,7 +871,7 @@ fn best_reachable(
         let p = at(t);
         match checker.check(
             &p,
-            problem.spread_at(&p),
+            &problem.hand_at(&p),
             &[lo_f.grasp.joints, first_f.grasp.joints],
             &[lo_f.pregrasp.joints, first_f.pregrasp.joints],
             true,
@@ -913,7 +907,7 @@ fn best_reachable(
     // Confirm with the full check, seeded with the solution found.
     let confirmed = checker.check(
         &pose,
-        problem.spread_at(&pose),
+        &problem.hand_at(&pose),
         &[f.grasp.joints],
         &[f.pregrasp.joints],
         false,
@@ -956,7 +950,13 @@ fn best_single(
     let mut constrained_runs = 0;
     let planned = match checker {
         None => problem.planned_at(pose, grasp.spread_rad, grasp.preshape_rad, Ok(None)),
-        Some(c) => match c.check(&pose, grasp.spread_rad, &[], &[], false) {
+        Some(c) => match c.check(
+            &pose,
+            &grasp.preshape_rad.at_spread(grasp.spread_rad),
+            &[],
+            &[],
+            false,
+        ) {
             Ok(f) => problem.planned_at(pose, grasp.spread_rad, grasp.preshape_rad, Ok(Some(f))),
             Err(why) if !(problem.options.repair && problem.options.repair_best_single) => {
                 problem.planned_at(pose, grasp.spread_rad, grasp.preshape_rad, Err(why))
@@ -1362,7 +1362,9 @@ mod tests {
         let everywhere = Region(|_: &Pose| true);
         let options = PlanOptions::with_kernel(Kernel::LAPLACE_DEFAULT);
         let blind = plan(&fits, &grasps, "side", &options, Some(&everywhere)).unwrap();
-        assert!(seen.intrusion(&blind.plan.grasp.pose, 0.0).is_some());
+        assert!(seen
+            .intrusion(&blind.plan.grasp.pose, &HandPose::OPEN)
+            .is_some());
         let out = plan_with(
             &fits,
             &grasps,
@@ -1380,7 +1382,11 @@ mod tests {
         assert!(unc.unreachable.to_string().contains("seen surface"));
         for g in [&out.plan.grasp, &out.best_single.grasp] {
             assert!(g.reachable, "{g:?}");
-            assert_eq!(seen.intrusion(&g.pose, g.spread_rad), None, "{g:?}");
+            assert_eq!(
+                seen.intrusion(&g.pose, &g.preshape_rad.at_spread(g.spread_rad)),
+                None,
+                "{g:?}"
+            );
             assert!(g.log_objective < unc.log_objective);
         }
         // Moved out of the object, not far off.
@@ -1530,7 +1536,7 @@ mod tests {
         assert!(robot.reach(&unc.pose, &HandPose::OPEN, &[]).is_err());
         assert!(out.plan.grasp.reachable);
         // The joints reach grasp and pre-grasp, inside the limits, touching nothing.
-        let hand = open_hand(out.plan.grasp.spread_rad);
+        let hand = HandPose::open(out.plan.grasp.spread_rad);
         for (q, pose) in [
             (out.plan.grasp.joints.unwrap(), out.plan.grasp.pose),
             (
@@ -1562,7 +1568,7 @@ mod tests {
                 continue;
             }
             let pose = pose_from_params(&p);
-            let hand = open_hand(grasps[0].spread_rad);
+            let hand = HandPose::open(grasps[0].spread_rad);
             let seed = out.plan.grasp.joints.unwrap();
             if let Ok(s) = robot.reach(&pose, &hand, &[seed]) {
                 let pre = pregrasp_pose(&pose, options.pregrasp_offset_m);

@@ -451,9 +451,10 @@ fn feasible(
     log_objective: &dyn Fn(&Pose) -> f64,
 ) -> Option<PlannedGrasp> {
     let reach = feasibility.reach;
+    let hand = near.preshape_rad.at_spread(spread_rad);
     if feasibility
         .seen
-        .is_some_and(|s| s.intrusion(&pose, spread_rad).is_some())
+        .is_some_and(|s| s.intrusion(&pose, &hand).is_some())
     {
         return None;
     }
@@ -461,10 +462,6 @@ fn feasible(
     let (joints, pregrasp_joints) = match reach {
         None => (None, None),
         Some(r) => {
-            let hand = HandPose {
-                spread_rad,
-                flex_rad: [0.0; 3],
-            };
             let seeds: Vec<_> = near.joints.into_iter().collect();
             let at = r.reach(&pose, &hand, &seeds).ok()?;
             let mut pre_seeds = vec![at.joints];

@@ -151,15 +151,12 @@ impl<'a> SeenSurface<'a> {
         &self.options
     }
 
-    /// The first intrusion of the hand open at `spread_rad` into the seen points,
-    /// at the grasp `palm` or along its approach (at its start only when contact
-    /// stops the approach); `None` when it stays clear.
-    pub fn intrusion(&self, palm: &Pose, spread_rad: f64) -> Option<Intrusion> {
+    /// The first intrusion of the hand in its pre-shape `hand` (open, or fingers
+    /// partly closed) into the seen points, at the grasp `palm` or along its
+    /// approach (at its start only when contact stops the approach); `None` when it
+    /// stays clear.
+    pub fn intrusion(&self, palm: &Pose, hand: &HandPose) -> Option<Intrusion> {
         let o = &self.options;
-        let hand = HandPose {
-            spread_rad,
-            flex_rad: [0.0; 3],
-        };
         let steps = (o.approach_m / o.step_m).ceil() as usize;
         let back = |k: usize| -> Pose {
             let d = (k as f64 * o.step_m).min(o.approach_m);
@@ -167,7 +164,7 @@ impl<'a> SeenSurface<'a> {
         };
         let pre = back(steps);
         let first = if o.contact_stops_approach { steps } else { 0 };
-        for (link, link_pose) in self.hand.link_poses(&hand) {
+        for (link, link_pose) in self.hand.link_poses(hand) {
             for (link_from_shape, shape) in &link.shapes {
                 let local = link_pose * link_from_shape;
                 // The box swept by the shape along the approach (a translation).
@@ -243,13 +240,13 @@ pub(crate) mod tests {
         // Palm z (approach) along +x toward the cylinder's axis, palm at the axis.
         let inside = pose_from_params(&[0.6, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
         let hit = seen
-            .intrusion(&inside, 0.0)
+            .intrusion(&inside, &HandPose::OPEN)
             .expect("the palm is in the cylinder");
         assert!(hit.depth_m > 0.003 && hit.points > 0, "{hit:?}");
         assert!(hit.to_string().contains("mm"), "{hit}");
         // The same orientation 0.25 m back: clear, and so is its approach.
         let clear = pose_from_params(&[0.35, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
-        assert_eq!(seen.intrusion(&clear, 0.0), None);
+        assert_eq!(seen.intrusion(&clear, &HandPose::OPEN), None);
         // Clear at the grasp but not along the approach: the first palm position
         // beyond the cylinder where the hand itself is clear, come through it.
         let at_grasp_only = SeenSurfaceOptions {
@@ -261,11 +258,11 @@ pub(crate) mod tests {
             |x: f64| pose_from_params(&[x, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
         let clear_x = (0..60)
             .map(|k| 0.6 + 0.005 * k as f64)
-            .find(|&x| only.intrusion(&beyond(x), 0.0).is_none())
+            .find(|&x| only.intrusion(&beyond(x), &HandPose::OPEN).is_none())
             .expect("the hand clears the cylinder somewhere beyond it");
         assert!(clear_x < 0.6 + 0.1, "{clear_x}");
         let hit = seen
-            .intrusion(&beyond(clear_x), 0.0)
+            .intrusion(&beyond(clear_x), &HandPose::OPEN)
             .expect("the approach crosses it");
         assert!(hit.behind_grasp_m > 0.0, "{hit:?}");
         let empty = PointCloud::from_points(Vec::new());
@@ -284,10 +281,10 @@ pub(crate) mod tests {
         let approaching_x =
             |x: f64| pose_from_params(&[x, 0.0, 0.05, 0.0, std::f64::consts::FRAC_PI_2, 0.0]);
         // Planned 2 cm into the cylinder: the palm will stop at its surface.
-        assert_eq!(seen.intrusion(&approaching_x(0.58), 0.0), None);
+        assert_eq!(seen.intrusion(&approaching_x(0.58), &HandPose::OPEN), None);
         // Planned so deep that the pre-grasp, 10 cm back, starts inside it.
         let hit = seen
-            .intrusion(&approaching_x(0.7), 0.0)
+            .intrusion(&approaching_x(0.7), &HandPose::OPEN)
             .expect("the approach starts inside the cylinder");
         assert!((hit.behind_grasp_m - 0.1).abs() < 1e-9, "{hit:?}");
     }

@@ -353,6 +353,16 @@ impl HandModel {
         HandModel::from_description(&description, &config.robot.palm_link, path)
     }
 
+    /// The flex range every finger allows (rad): the intersection of the fingers'
+    /// URDF limits, the range a pre-shape must keep to.
+    pub fn flex_limits_rad(&self) -> (f64, f64) {
+        self.fingers
+            .iter()
+            .fold((f64::MIN, f64::MAX), |(lo, hi), f| {
+                (lo.max(f.flex_limits_rad.0), hi.min(f.flex_limits_rad.1))
+            })
+    }
+
     /// Every link of the hand at `hand` (palm frame): the palm, then each finger's
     /// proximal and distal links (coupled).
     pub fn link_poses(&self, hand: &super::HandPose) -> Vec<(&HandLink, Pose)> {
@@ -396,6 +406,16 @@ mod tests {
         assert_eq!(hand.fingers[2].distal.name, "bh_f3_distal");
         assert!((hand.fingers[1].distal_ratio - 0.3443).abs() < 1e-12);
         assert!((hand.fingers[1].distal_limits_rad.1 - 0.84).abs() < 1e-3);
+    }
+
+    /// Files and messages are checked against the BH8-282's flex range without a
+    /// URDF at hand; the shipped URDF must agree with it.
+    #[test]
+    fn the_shipped_urdf_has_the_bh8_282_flex_range() {
+        let robot = shipped_robot();
+        let hand =
+            HandModel::from_description(&robot.description, "bh_palm", Path::new("x")).unwrap();
+        assert_eq!(hand.flex_limits_rad(), crate::robot::FLEX_LIMITS_RAD);
     }
 
     #[test]

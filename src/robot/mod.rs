@@ -116,7 +116,10 @@ impl HandPose {
 }
 
 /// The BH8-282's flex range (rad), each finger: open (0) to folded over the palm
-/// (140 deg); the shipped URDF's limits.
+/// (140 deg). Category files and grasp messages are checked against it where no
+/// hand model is loaded (as the spread against 0..=pi); where one is, its
+/// [`hand::HandModel::flex_limits_rad`] from the URDF applies (a unit test keeps
+/// the shipped URDF equal to this).
 pub const FLEX_LIMITS_RAD: (f64, f64) = (0.0, 2.44);
 
 /// A grasp's pre-shape: each finger's flex before the approach (rad), F1 F2 F3.

@@ -304,6 +304,18 @@ pub fn held_apart_seed(category: Category, set_seed: u64, index: u64) -> u64 {
         .unwrap_or(first)
 }
 
+/// Held-apart instance `index` of the set `set_seed`, as the novel-object
+/// experiments draw it (`cell eval novel`, campaigns with `--family held-apart`):
+/// its name (`squat-mug-1-0`: kind, set, index) and generator seed.
+pub fn held_apart_instance(category: Category, set_seed: u64, index: u64) -> (String, u64) {
+    let seed = held_apart_seed(category, set_seed ^ 0x6865_6c64_6170_6172, index);
+    let name = match held_apart_kind(category, seed) {
+        Some(k) => format!("{}-{set_seed}-{index}", k.name()),
+        None => format!("{category}-novel-{set_seed}-{index}"),
+    };
+    (name, seed)
+}
+
 /// An instance of `category` from `seed` in `family`: mesh and parameters.
 pub fn generate_in(family: Family, category: Category, seed: u64) -> (TriMesh, Params) {
     match family {
