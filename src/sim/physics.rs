@@ -93,7 +93,7 @@ const VELOCITY_GAIN: f64 = 1e4;
 const HOLD_STIFFNESS: f64 = 2e3;
 const HOLD_DAMPING: f64 = 20.0;
 
-/// A joint slower than this (rad/s) is stalled.
+/// A joint slower than this on average (rad/s) is stalled.
 const STALL_RAD_S: f64 = 0.05;
 
 /// A joint is stopped after being stalled this long (s).
@@ -536,8 +536,9 @@ struct FingerBody {
     palm_from_flex_base: Pose,
     phase: FingerPhase,
     stalled_s: f64,
-    last_flex: f64,
-    last_distal: f64,
+    /// The watched joint's angle (flex while closing, distal after the
+    /// breakaway) when its stall began; `None` until the first step of a phase.
+    stall_from_rad: Option<f64>,
 }
 
 /// The world of one test.
@@ -883,8 +884,7 @@ fn add_finger(
         palm_from_flex_base,
         phase: FingerPhase::Closing,
         stalled_s: 0.0,
-        last_flex: flex0,
-        last_distal: distal0,
+        stall_from_rad: Some(flex0),
     };
     (body, colliders)
 }
@@ -945,13 +945,20 @@ impl FingerBody {
         (flex, distal)
     }
 
-    /// Counts the time stalled: up by `dt` when slower than [`STALL_RAD_S`], else reset.
-    fn track_stall(&mut self, moving: f64, dt: f64) {
-        self.stalled_s = if moving < STALL_RAD_S {
-            self.stalled_s + dt
-        } else {
-            0.0
-        };
+    /// Counts the time the watched joint at `angle` has been stalled: up by `dt`
+    /// while it stays within [`STALL_RAD_S`] x [`STALL_TIME_S`] of where the stall
+    /// began, else restarted there. Net motion, not one step's, so that a link
+    /// jittering against a contact counts as stalled.
+    fn track_stall(&mut self, angle: f64, dt: f64) {
+        match self.stall_from_rad {
+            Some(from) if (angle - from).abs() <= STALL_RAD_S * STALL_TIME_S => {
+                self.stalled_s += dt;
+            }
+            _ => {
+                self.stall_from_rad = Some(angle);
+                self.stalled_s = 0.0;
+            }
+        }
     }
 
     /// One step of a closing finger at time `t`: keeps the distal coupled, and goes
@@ -966,18 +973,15 @@ impl FingerBody {
             j.data
                 .set_motor_position(JointAxis::AngX, coupled, HOLD_STIFFNESS, HOLD_DAMPING);
         }
-        self.track_stall((flex - self.last_flex).abs() / dt, dt);
+        self.track_stall(flex, dt);
         if flex >= finger.flex_limits_rad.1 - 1e-3 {
             self.phase = FingerPhase::AtLimit;
         } else if self.stalled_s >= STALL_TIME_S && t > 2.0 * STALL_TIME_S {
             // TorqueSwitch breakaway: the proximal holds, the distal closes on.
             self.phase = FingerPhase::Breakaway;
             self.stalled_s = 0.0;
-            if let Some(j) = world.joints.get_mut(self.flex_joint, false) {
-                j.data
-                    .set_motor_position(JointAxis::AngX, flex, HOLD_STIFFNESS, HOLD_DAMPING)
-                    .set_motor_max_force(JointAxis::AngX, GEAR_HOLD_FACTOR * torque);
-            }
+            self.stall_from_rad = None;
+            self.lock_proximal(world, flex, torque);
             if let Some(j) = world.joints.get_mut(self.distal_joint, true) {
                 j.data
                     .set_motor_velocity(
@@ -993,14 +997,48 @@ impl FingerBody {
     /// One step of a finger broken away: stops when the distal link is blocked or at
     /// its limit.
     fn step_breakaway(&mut self, world: &mut World, finger: &Finger, distal: f64, dt: f64) {
-        self.track_stall((distal - self.last_distal).abs() / dt, dt);
+        self.track_stall(distal, dt);
         if distal >= finger.distal_limits_rad.1 - 1e-3 || self.stalled_s >= STALL_TIME_S {
-            self.phase = FingerPhase::Stopped;
-            // From now on the stalled motor's torque is applied as such
-            // ([`press`]), not through the velocity motor.
-            if let Some(j) = world.joints.get_mut(self.distal_joint, true) {
-                j.data.set_motor_max_force(JointAxis::AngX, 0.0);
-            }
+            self.stop(world);
+        }
+    }
+
+    /// Locks the proximal link at `flex` as the worm drive does when the
+    /// TorqueSwitch breaks away: under the load it carried, the stalled motor's
+    /// `torque` (the hold's spring is wound that far past `flex`), so a proximal
+    /// link stalled against the object keeps squeezing it.
+    fn lock_proximal(&self, world: &mut World, flex: f64, torque: f64) {
+        if let Some(j) = world.joints.get_mut(self.flex_joint, false) {
+            j.data
+                .set_motor_position(
+                    JointAxis::AngX,
+                    flex + torque / HOLD_STIFFNESS,
+                    HOLD_STIFFNESS,
+                    HOLD_DAMPING,
+                )
+                .set_motor_max_force(JointAxis::AngX, GEAR_HOLD_FACTOR * torque);
+        }
+    }
+
+    /// Stops the finger: from now on its stalled motor's torque is applied as such
+    /// ([`press`]), not through the velocity motor.
+    fn stop(&mut self, world: &mut World) {
+        self.phase = FingerPhase::Stopped;
+        if let Some(j) = world.joints.get_mut(self.distal_joint, true) {
+            j.data.set_motor_max_force(JointAxis::AngX, 0.0);
+        }
+    }
+
+    /// At the close's timeout, a finger still moving (a distal link that jitters
+    /// against the object never counts as stalled) is where the real hand's motor
+    /// stalls and keeps its torque: the proximal link holds (the worm drive), the
+    /// distal link is pressed ([`press`]) through lift and hold.
+    fn stop_at_timeout(&mut self, world: &mut World, finger: &Finger, flex: f64) {
+        if self.phase == FingerPhase::Closing {
+            self.lock_proximal(world, flex, flex_drive(finger).1);
+        }
+        if matches!(self.phase, FingerPhase::Closing | FingerPhase::Breakaway) {
+            self.stop(world);
         }
     }
 }
@@ -1087,9 +1125,11 @@ impl<'a> LiftRig<'a> {
                     FingerPhase::Breakaway => f.step_breakaway(&mut self.world, finger, distal, dt),
                     FingerPhase::AtLimit | FingerPhase::Stopped => {}
                 }
-                f.last_flex = flex;
-                f.last_distal = distal;
             }
+        }
+        for (f, finger) in self.fingers.iter_mut().zip(&self.hand.fingers) {
+            let (flex, _) = f.angles(&self.world, &self.scene.base_from_palm, finger);
+            f.stop_at_timeout(&mut self.world, finger, flex);
         }
         t
     }
