@@ -130,10 +130,19 @@ pub fn bounding_box(mesh: &TriMesh) -> Option<(Point3<f64>, Point3<f64>)> {
 /// bottle is; a mug with a handle, or a tool lying flat, is not (its rotation about
 /// the axis matters).
 pub fn is_axisymmetric(mesh: &TriMesh, tolerance_m: f64) -> bool {
+    points_axisymmetric(mesh.vertices.iter().copied(), tolerance_m)
+}
+
+/// [`is_axisymmetric`] for points (a mesh's vertices, or a cloud sampled densely on
+/// its surface).
+pub fn points_axisymmetric(
+    points: impl IntoIterator<Item = Point3<f64>>,
+    tolerance_m: f64,
+) -> bool {
     const SLAB_M: f64 = 0.005;
     const SECTORS: usize = 12;
     let mut slabs: std::collections::BTreeMap<i64, [f64; SECTORS]> = Default::default();
-    for p in &mesh.vertices {
+    for p in points {
         if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
             return false;
         }

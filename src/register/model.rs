@@ -32,7 +32,14 @@ pub(super) struct PreparedModel {
     pub(super) centre: Point3<f32>,
     /// Bounding-box diagonal (m).
     pub(super) extent_m: f64,
+    /// Whether its turn about its z axis matters (it is no solid of revolution):
+    /// it takes part in the heading consensus.
+    pub(super) has_heading: bool,
 }
+
+/// How far (m) a model's outline may stray from a solid of revolution's and still
+/// count as one (sampled surface points; a mug's handle stands out 2-4 cm).
+const AXISYMMETRIC_TOLERANCE_M: f64 = 0.003;
 
 #[derive(Debug)]
 pub(super) struct ModelEntry {
@@ -140,7 +147,12 @@ pub(super) fn prepare_model(
         .iter()
         .map(|c| points[index.nearest(c).map_or(0, |(j, _)| j)])
         .collect();
+    let has_heading = !crate::mesh::topology::points_axisymmetric(
+        points.iter().map(|p| p.cast::<f64>()),
+        AXISYMMETRIC_TOLERANCE_M,
+    );
     Ok(PreparedModel {
+        has_heading,
         centre: centroid(&points),
         points,
         normals,

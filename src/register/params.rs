@@ -116,6 +116,12 @@ pub struct RegisterParams {
     /// weight rather than a threshold decides (the paper keeps every model with a
     /// small weight). Failures without a pose (scale mismatch) still fail.
     pub keep_poor_fits: bool,
+    /// The models agree on the object's heading (module `consensus`; beyond the
+    /// paper, which registers each model alone).
+    pub heading_consensus: bool,
+    /// A fit whose heading is more than this (deg) from the agreed one is refined
+    /// again from it; fits within it of each other agree.
+    pub heading_consensus_deg: f64,
 }
 
 /// How a registration's `eps` and `sigma` are scored.
@@ -179,18 +185,22 @@ impl Default for RegisterParams {
             fit_score: FitScore::TwoSided,
             complete_view: false,
             keep_poor_fits: false,
+            heading_consensus: true,
+            heading_consensus_deg: 30.0,
         }
     }
 }
 
 impl RegisterParams {
     /// These parameters scored as the paper did (issue 19's `--paper`): the
-    /// one-sided `eps` and `sigma`, and poor registrations kept as fits, so that the
-    /// fit weight rather than a threshold turns them down.
+    /// one-sided `eps` and `sigma`, poor registrations kept as fits, so that the
+    /// fit weight rather than a threshold turns them down, and every model
+    /// registered alone (no heading consensus).
     pub fn paper(self) -> RegisterParams {
         RegisterParams {
             fit_score: FitScore::OneSided,
             keep_poor_fits: true,
+            heading_consensus: false,
             ..self
         }
     }
@@ -211,6 +221,7 @@ impl RegisterParams {
             ("max_scale_ratio", self.max_scale_ratio),
             ("range_bin_m", self.range_bin_m),
             ("rank_cap_m", self.rank_cap_m),
+            ("heading_consensus_deg", self.heading_consensus_deg),
             ("seen_through_margin_m", self.seen_through_margin_m),
         ];
         for (name, value) in positive {
@@ -298,9 +309,14 @@ mod tests {
         }
         .paper();
         assert_eq!(
-            (paper.fit_score, paper.keep_poor_fits),
-            (FitScore::OneSided, true)
+            (
+                paper.fit_score,
+                paper.keep_poor_fits,
+                paper.heading_consensus
+            ),
+            (FitScore::OneSided, true, false)
         );
+        assert!(ours.heading_consensus);
         assert_eq!(paper.model_points, 500, "the rest is kept");
     }
 

@@ -24,7 +24,7 @@ fn exact_settings(params: &RegisterParams) -> IcpSettings {
 }
 
 /// One candidate refined in both passes on the target's ICP cloud, and its cost.
-fn refine_one(
+pub(super) fn refine_one(
     target: &PreparedTarget,
     model: &PreparedModel,
     params: &RegisterParams,
