@@ -22,6 +22,7 @@ use super::target::PreparedTarget;
 use super::{ModelRegistration, RegisterParams, RegistrationStatus};
 use crate::geometry::{wrap_angle, Pose};
 use nalgebra::{Translation3, Unit, UnitQuaternion, Vector3};
+use rayon::prelude::*;
 
 /// A fit tipped this far (rad) from upright has no heading.
 const MAX_TILT_RAD: f64 = 0.5;
@@ -122,57 +123,72 @@ pub(super) fn agree_on_heading(
     ) else {
         return;
     };
-    for ((r, m), h) in results.iter_mut().zip(models).zip(&headings) {
-        let Some(model) = m.filter(|m| m.has_heading) else {
-            continue;
-        };
-        if r.status != RegistrationStatus::Ok {
-            continue;
-        }
-        let start = match h {
-            // Upright, turned away: turned back about the table normal through its origin.
-            Some((h, _)) => {
-                let turn = wrap_angle(centre - h);
-                if turn.abs() <= tolerance_rad {
-                    continue;
+    // The dissenters and where each starts again.
+    let starts: Vec<(usize, &PreparedModel, Pose)> = results
+        .iter()
+        .zip(models)
+        .zip(&headings)
+        .enumerate()
+        .filter_map(|(i, ((r, m), h))| {
+            let model = m.filter(|m| m.has_heading)?;
+            if r.status != RegistrationStatus::Ok {
+                return None;
+            }
+            let start = match h {
+                // Upright, turned away: turned back about the table normal through
+                // its origin.
+                Some((h, _)) => {
+                    let turn = wrap_angle(centre - h);
+                    if turn.abs() <= tolerance_rad {
+                        return None;
+                    }
+                    let origin = r.target_from_model.translation.vector;
+                    Translation3::from(origin)
+                        * UnitQuaternion::from_axis_angle(&up, turn)
+                        * Translation3::from(-origin)
+                        * r.target_from_model
                 }
-                let origin = r.target_from_model.translation.vector;
-                Translation3::from(origin)
-                    * UnitQuaternion::from_axis_angle(&up, turn)
-                    * Translation3::from(-origin)
-                    * r.target_from_model
-            }
-            // Tipped over (a mug fitted upside down): stood upright at the agreed
-            // heading, its centroid where the fit put it.
-            None => {
-                let centre_m = model.centre.cast::<f64>();
-                let rotation = upright_at(centre, &up);
-                let at = r.target_from_model * centre_m;
-                Pose::from_parts(
-                    Translation3::from(at.coords - rotation * centre_m.coords),
-                    rotation,
-                )
-            }
-        };
-        let refined = refine_one(
-            target,
-            model,
-            params,
-            &Candidate {
-                model_from_target: start.inverse(),
-                cost: f64::INFINITY,
-                iterations: 0,
-            },
-        );
-        tracing::debug!(
-            model = %r.model,
-            heading_deg = ?h.map(|(h, _)| h.to_degrees()),
-            agreed_deg = centre.to_degrees(),
-            "heading consensus: refitted from the agreed heading"
-        );
-        let time_ms = r.time_ms;
-        *r = refit(&r.model, model, refined);
-        r.time_ms += time_ms;
+                // Tipped over (a mug fitted upside down): stood upright at the agreed
+                // heading, its centroid where the fit put it.
+                None => {
+                    let centre_m = model.centre.cast::<f64>();
+                    let rotation = upright_at(centre, &up);
+                    let at = r.target_from_model * centre_m;
+                    Pose::from_parts(
+                        Translation3::from(at.coords - rotation * centre_m.coords),
+                        rotation,
+                    )
+                }
+            };
+            tracing::debug!(
+                model = %r.model,
+                heading_deg = ?h.map(|(h, _)| h.to_degrees()),
+                agreed_deg = centre.to_degrees(),
+                "heading consensus: refitting from the agreed heading"
+            );
+            Some((i, model, start))
+        })
+        .collect();
+    let refitted: Vec<(usize, ModelRegistration)> = starts
+        .into_par_iter()
+        .map(|(i, model, start)| {
+            let refined = refine_one(
+                target,
+                model,
+                params,
+                &Candidate {
+                    model_from_target: start.inverse(),
+                    cost: f64::INFINITY,
+                    iterations: 0,
+                },
+            );
+            (i, refit(&results[i].model, model, refined))
+        })
+        .collect();
+    for (i, r) in refitted {
+        let time_ms = results[i].time_ms;
+        results[i] = r;
+        results[i].time_ms += time_ms;
     }
 }
 
