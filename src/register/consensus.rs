@@ -26,8 +26,9 @@ use rayon::prelude::*;
 
 /// A fit tipped this far (rad) from upright has no heading.
 const MAX_TILT_RAD: f64 = 0.5;
-/// Share of the weight of the fits with a heading that the agreeing ones must exceed.
-const MAJORITY: f64 = 0.5;
+/// Share of the weight of the fits with a heading that the agreeing ones must exceed
+/// (a near-even split, as of a knife against hammers end to end, is no consensus).
+const MAJORITY: f64 = 0.6;
 /// Fewest fits with a heading for a consensus.
 const MIN_FITS: usize = 3;
 
