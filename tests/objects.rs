@@ -416,23 +416,15 @@ fn truncated_and_malformed_obj_files_name_file_and_line() {
 #[test]
 fn cli_generates_meshes_and_params() {
     let dir = TempDir::new("objects-cli").unwrap();
+    // `cell objects generate --category mug --out DIR` with `extra`.
+    let generate_mugs = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["cell", "objects", "generate", "--category", "mug"];
+        args.extend_from_slice(extra);
+        args.extend(["--out", out.to_str().unwrap()]);
+        run(Cli::try_parse_from(args).unwrap()).unwrap();
+    };
     let out = dir.join("mugs");
-    let cli = Cli::try_parse_from([
-        "cell",
-        "objects",
-        "generate",
-        "--category",
-        "mug",
-        "--count",
-        "3",
-        "--seed",
-        "1",
-        "--out",
-        out.to_str().unwrap(),
-        "--json",
-    ])
-    .unwrap();
-    run(cli).unwrap();
+    generate_mugs(&out, &["--count", "3", "--seed", "1", "--json"]);
     let listing: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("params.json")).unwrap()).unwrap();
     assert_eq!(listing["category"], "mug");
@@ -453,21 +445,7 @@ fn cli_generates_meshes_and_params() {
     // The held-apart family: the objects of `cell eval novel`, named as its
     // trials name them.
     let held = dir.join("held");
-    let cli = Cli::try_parse_from([
-        "cell",
-        "objects",
-        "generate",
-        "--category",
-        "mug",
-        "--count",
-        "2",
-        "--family",
-        "held-apart",
-        "--out",
-        held.to_str().unwrap(),
-    ])
-    .unwrap();
-    run(cli).unwrap();
+    generate_mugs(&held, &["--count", "2", "--family", "held-apart"]);
     let listing: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(held.join("params.json")).unwrap()).unwrap();
     assert_eq!(listing["family"], "held-apart");

@@ -19,10 +19,11 @@ use super::model::PreparedModel;
 use super::refine::refine_one;
 use super::search::Candidate;
 use super::target::PreparedTarget;
-use super::{ModelRegistration, RegisterParams, RegistrationStatus};
+use super::{scored, ModelRegistration, ModelStageTimes, RegisterParams, RegistrationStatus};
 use crate::geometry::{wrap_angle, Pose};
 use nalgebra::{Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
+use std::time::Instant;
 
 /// A fit tipped this far (rad) from upright has no heading.
 const MAX_TILT_RAD: f64 = 0.5;
@@ -69,8 +70,8 @@ fn upright_at(heading_rad: f64, up: &Unit<Vector3<f64>>) -> UnitQuaternion<f64> 
 }
 
 /// The agreed heading of `(heading, weight)` pairs: the weighted circular mean of
-/// the largest group within `tolerance_rad` of one of them, when it holds
-/// [`MAJORITY`] of the weight.
+/// the largest group within `tolerance_rad` of one of them, when it holds more
+/// than [`MAJORITY`] of the weight.
 fn agreed(headings: &[(f64, f64)], tolerance_rad: f64) -> Option<f64> {
     let total: f64 = headings.iter().map(|h| h.1).sum();
     if headings.len() < MIN_FITS || total <= 0.0 {
@@ -96,14 +97,12 @@ fn agreed(headings: &[(f64, f64)], tolerance_rad: f64) -> Option<f64> {
 }
 
 /// Brings the dissenting fits of `results` (one per entry of `models`, in order)
-/// to the agreed heading; see the module documentation. `refit` re-registers one
-/// model from a start and scores it.
+/// to the agreed heading; see the module documentation.
 pub(super) fn agree_on_heading(
     results: &mut [ModelRegistration],
     models: &[Option<&PreparedModel>],
     target: &PreparedTarget,
     params: &RegisterParams,
-    refit: impl Fn(&str, &PreparedModel, Candidate) -> ModelRegistration + Sync,
 ) {
     let up = Unit::new_normalize(Vector3::from(params.up));
     let tolerance_rad = params.heading_consensus_deg.to_radians();
@@ -183,7 +182,16 @@ pub(super) fn agree_on_heading(
                     iterations: 0,
                 },
             );
-            (i, refit(&results[i].model, model, refined))
+            let refit = scored(
+                &results[i].model,
+                model,
+                target,
+                params,
+                &refined,
+                Instant::now(),
+                ModelStageTimes::default(),
+            );
+            (i, refit)
         })
         .collect();
     for (i, r) in refitted {
@@ -195,10 +203,9 @@ pub(super) fn agree_on_heading(
 
 #[cfg(test)]
 mod tests {
-    use super::super::{fixture, scored, ModelStageTimes};
+    use super::super::{fixture, ModelStageTimes};
     use super::*;
     use crate::geometry::pose_error;
-    use std::time::Instant;
 
     /// A registration at `pose` with finite scores.
     fn ok_fit(pose: Pose) -> ModelRegistration {
@@ -233,17 +240,7 @@ mod tests {
             * Pose::rotation(Vector3::x() * std::f64::consts::PI);
         let mut results = vec![at(truth), at(truth), at(turned), at(upside_down)];
         let models = vec![Some(&model); 4];
-        agree_on_heading(&mut results, &models, &target, &params, |name, m, c| {
-            scored(
-                name,
-                m,
-                &target,
-                &params,
-                &c,
-                Instant::now(),
-                ModelStageTimes::default(),
-            )
-        });
+        agree_on_heading(&mut results, &models, &target, &params);
         for (i, r) in results.iter().enumerate() {
             let (dp, dr) = pose_error(&r.target_from_model, &truth);
             assert!(dp < 0.005 && dr < 0.1, "fit {i}: {dp} m, {dr} rad");
@@ -264,13 +261,7 @@ mod tests {
             .map(ok_fit)
             .collect();
         let before = results.clone();
-        agree_on_heading(
-            &mut results,
-            &[Some(&model); 4],
-            &target,
-            &params,
-            |_, _, _| panic!("nothing to refit"),
-        );
+        agree_on_heading(&mut results, &[Some(&model); 4], &target, &params);
         assert_eq!(results, before);
     }
 

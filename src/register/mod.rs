@@ -263,23 +263,7 @@ pub fn register_all_timed(
             .iter()
             .map(|entry| entry.prepared.as_ref().ok())
             .collect();
-        consensus::agree_on_heading(
-            &mut results,
-            &prepared,
-            &target,
-            params,
-            |name, model, c| {
-                scored(
-                    name,
-                    model,
-                    &target,
-                    params,
-                    &c,
-                    Instant::now(),
-                    ModelStageTimes::default(),
-                )
-            },
-        );
+        consensus::agree_on_heading(&mut results, &prepared, &target, params);
     }
     for r in &results {
         timings.matching_ms += r.stages.matching_ms;
