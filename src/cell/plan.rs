@@ -13,7 +13,9 @@ use super::{stop_requested, ByTrial, CellError, TICK};
 use crate::category::CategoryDb;
 use crate::cloud::PointCloud;
 use crate::config::CellConfig;
-use crate::execute::{validate_grasp, ExecutionRequest, ExecutorConfig, SafetyCheck, SafetyLimits};
+use crate::execute::{
+    pregrasp_line_end, validate_grasp, ExecutionRequest, ExecutorConfig, SafetyCheck, SafetyLimits,
+};
 use crate::geometry::PoseJson;
 use crate::ipc::Domain;
 use crate::ipc::{
@@ -228,8 +230,10 @@ pub fn plan_trial(
 /// its safety checks). The planner only needs some IK solution to know a pose is
 /// reachable, and from its generic seeds it may find one on another branch
 /// (shoulder turned by half a turn) that the executor's joint-space move could not
-/// reach safely. Pre-grasp solutions are tried seeded first with `current` and the
-/// planner's solution, then the IK's spread of seeds; the grasp is solved near each.
+/// reach safely. Pre-grasp solutions are tried seeded first with `current`, the
+/// planner's solution and its equivalents ([`crate::robot::kinematics::ArmKinematics::equivalents`]),
+/// the end of the palm's straight line from `current` ([`pregrasp_line_end`]), then
+/// the IK's spread of seeds; the grasp is solved near each.
 /// A reachability failure, with the executor's refusal of the first candidate,
 /// when none is accepted.
 pub fn executable_joints(
@@ -241,7 +245,21 @@ pub fn executable_joints(
 ) -> Result<(), PlanFailure> {
     let hand = grasp.preshape_rad.at_spread(grasp.spread_rad);
     let mut seeds = vec![*current];
-    seeds.extend(grasp.pregrasp_joints);
+    if let Some(planned) = grasp.pregrasp_joints {
+        // The planner's solution, then its equivalents (the same pose with a
+        // shoulder, elbow or wrist flipped) nearest the arm first: the IK's generic
+        // seeds may have found the branch half a turn away.
+        seeds.push(planned);
+        seeds.extend(robot.arm().equivalents(&planned, current));
+    }
+    // Then the end of the palm's straight line from where it is: a pre-grasp the
+    // executor can reach along the line where a joint-space swing is refused.
+    seeds.extend(pregrasp_line_end(
+        robot,
+        config,
+        current,
+        &grasp.pregrasp_pose,
+    ));
     let mut first_refusal = None;
     let mut accepted = None;
     let _ = robot.ik.solve_with(&grasp.pregrasp_pose, &seeds, |pre| {

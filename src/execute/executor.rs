@@ -276,11 +276,17 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         self.phase(Phase::Preshape, report, began, observer, |ex, report| {
             ex.preshape(&plan, report)
         })?;
-        let pregrasp = plan.request.pregrasp_joints_rad;
         self.phase(Phase::Pregrasp, report, began, observer, |ex, report| {
-            let start = ex.commanded();
-            report.pregrasp_move =
-                Some(ex.move_along(Phase::Pregrasp, "pregrasp move", &[start, pregrasp], None)?);
+            // From where the arm is (the validated start: the pre-shape moves
+            // only the hand).
+            let mut waypoints = plan.pregrasp_waypoints.clone();
+            waypoints[0] = ex.commanded();
+            report.pregrasp_move = Some(ex.move_along(
+                Phase::Pregrasp,
+                "pregrasp move",
+                &waypoints,
+                plan.pregrasp_path.as_ref(),
+            )?);
             Ok(())
         })?;
         self.phase(Phase::Approach, report, began, observer, |ex, report| {
@@ -672,6 +678,7 @@ mod tests {
     use super::*;
     use crate::clock::ManualClock;
     use crate::execute::lockstep::LockstepArm;
+    use crate::execute::path::PathMethod;
     use crate::execute::SafetyError;
     use crate::geometry::{pose_from_params, Pose};
     use crate::hw::can::{CanBus, VirtualBus};
@@ -1378,5 +1385,50 @@ mod tests {
                 prop_assert!(verdict.is_none(), "{}; {}", verdict.unwrap_or_default(), report.human());
             }
         }
+    }
+
+    #[test]
+    fn a_pregrasp_move_refused_in_joint_space_goes_along_the_palm_line() {
+        let rig = Rig::grasping();
+        let robot = Arc::clone(&rig.robot);
+        // A side grasp low over the table, the palm facing +y: the joint-space
+        // swing from home drags the fingers through the table.
+        let pregrasp = pose_from_params(&[0.5, 0.0, 0.09, 0.0, PI / 2.0, PI / 2.0]);
+        let palm = pregrasp * Pose::translation(0.0, 0.0, 0.1);
+        let pre = robot.reach(&pregrasp, &HandPose::OPEN, &[HOME]).unwrap();
+        let grasp = robot.reach(&palm, &HandPose::OPEN, &[pre.joints]).unwrap();
+        let req = ExecutionRequest {
+            palm: PoseJson::from(&palm),
+            pregrasp: PoseJson::from(&pregrasp),
+            joints_rad: grasp.joints,
+            pregrasp_joints_rad: pre.joints,
+            spread_rad: 0.3,
+            preshape_rad: crate::robot::PreshapeRad::OPEN,
+            task: None,
+            method: None,
+        };
+        let mut ex = rig.executor(&rig.arm);
+        let direct = super::super::motions::checked_motion(
+            ex.arm.safety(),
+            ex.config.palm_speed_m_s,
+            Phase::Validate,
+            "pregrasp move",
+            &[HOME, pre.joints],
+            None,
+            &crate::robot::PreshapeRad::OPEN.at_spread(0.3),
+        );
+        assert!(
+            matches!(&direct, Err(ExecuteError::Unsafe { .. })),
+            "{direct:?}"
+        );
+        let report = ex.execute(&req);
+        assert_eq!(report.outcome, Outcome::Success, "{}", report.human());
+        let pregrasp_move = report.pregrasp_move.as_ref().unwrap();
+        assert_eq!(
+            pregrasp_move.method,
+            Some(PathMethod::CartesianWaypoints),
+            "{pregrasp_move:?}"
+        );
+        assert!(pregrasp_move.waypoints > 2, "{pregrasp_move:?}");
     }
 }

@@ -70,7 +70,7 @@ mod lockstep;
 
 pub use arm::Arm;
 pub use executor::{Executor, ExecutorConfig};
-pub use motions::{validate_grasp, GraspMotions};
+pub use motions::{pregrasp_line_end, validate_grasp, GraspMotions};
 pub use path::{PathError, PathMethod, PathTolerance, StraightPath};
 pub use report::{ApproachReport, ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
 pub use request::{ExecutionRequest, RequestError, ValidRequest};

@@ -1,12 +1,16 @@
 //! The arm motions of a grasp, built and checked before anything moves: the
-//! joint-space move to the pre-grasp joints, the straight approach through the
+//! move to the pre-grasp joints (one joint-space segment, or along the straight
+//! palm line where the safety layer refuses that, see [`pregrasp_move`]), the
+//! straight approach through the
 //! grasp to the end of the overtravel (approach to contact: the executor runs it
 //! as a guarded move that stops at contact) and the straight lift. The executor validates every request with
 //! [`validate_grasp`]; the planner stage runs the same check on its candidates, so
 //! a plan it publishes is one the executor accepts.
 
 use super::executor::ExecutorConfig;
-use super::path::{palm_speed_limited, peak_palm_speed, straight_line, StraightPath};
+use super::path::{
+    palm_speed_limited, peak_palm_speed, straight_line, PathTolerance, StraightPath,
+};
 use super::report::MotionReport;
 use super::request::{ExecutionRequest, ValidRequest};
 use super::safety::SafetyCheck;
@@ -28,6 +32,10 @@ pub struct GraspMotions {
     pub preshape: HandPose,
     /// The move from the current joints to the pre-grasp joints.
     pub pregrasp_move: MotionReport,
+    /// Its configurations, starting with the current joints.
+    pub pregrasp_waypoints: Vec<ArmJoints>,
+    /// The straight palm line it follows, when it is not one joint-space segment.
+    pub pregrasp_path: Option<StraightPath>,
     /// The straight approach, from the pre-grasp through the grasp to the end of
     /// the overtravel.
     pub approach: MotionReport,
@@ -124,15 +132,8 @@ pub fn validate_grasp(
     let robot = check.robot();
     let request = request.validate()?;
     let preshape = request.preshape_rad.at_spread(request.spread_rad);
-    let pregrasp_move = checked_motion(
-        check,
-        config.palm_speed_m_s,
-        PHASE,
-        "pregrasp move",
-        &[*current, request.pregrasp_joints_rad],
-        None,
-        &preshape,
-    )?;
+    let (pregrasp_move, pregrasp_waypoints, pregrasp_path) =
+        pregrasp_move(check, config, &request, current, &preshape)?;
     for (which, joints, pose) in [
         ("pregrasp", &request.pregrasp_joints_rad, &request.pregrasp),
         ("grasp", &request.joints_rad, &request.palm),
@@ -213,8 +214,112 @@ pub fn validate_grasp(
         request,
         preshape,
         pregrasp_move,
+        pregrasp_waypoints,
+        pregrasp_path,
         approach,
         overtravel_m,
         lift,
     })
+}
+
+/// How far the pre-grasp move's palm may stray from its straight line (m, rad): it
+/// moves through free space, so the line only keeps it inside the workspace; the
+/// safety layer checks the motion itself.
+const PREGRASP_LINE_POSITION_M: f64 = 0.02;
+const PREGRASP_LINE_ROTATION_RAD: f64 = 0.2;
+
+/// The checked move from `current` to the pre-grasp joints, with its waypoints and
+/// its straight palm line when it has one. One joint-space segment when the safety
+/// layer accepts it; a large shoulder turn in joint space can sweep the palm behind
+/// the base or under the table clearance. Else the palm's straight line from where
+/// it is to the pre-grasp pose, which stays between its two ends (inside the convex
+/// workspace box, above the table), solved continuously from `current` and ending
+/// on the planned joints; a line that ends on another branch of the arm's
+/// redundancy is refused. When the line fails too, the joint-space segment's
+/// refusal is the error. [`pregrasp_line_end`] gives the planner pre-grasp joints
+/// on the line's branch.
+pub fn pregrasp_move(
+    check: &SafetyCheck,
+    config: &ExecutorConfig,
+    request: &ValidRequest,
+    current: &ArmJoints,
+    hand: &HandPose,
+) -> Result<(MotionReport, Vec<ArmJoints>, Option<StraightPath>), ExecuteError> {
+    const PHASE: Phase = Phase::Validate;
+    const NAME: &str = "pregrasp move";
+    let target = request.pregrasp_joints_rad;
+    let direct = [*current, target];
+    let refusal = match checked_motion(
+        check,
+        config.palm_speed_m_s,
+        PHASE,
+        NAME,
+        &direct,
+        None,
+        hand,
+    ) {
+        Ok(report) => return Ok((report, direct.to_vec(), None)),
+        Err(e) => e,
+    };
+    let tolerance = pregrasp_tolerance(config);
+    let Ok(mut path) = straight_line(
+        check.robot(),
+        current,
+        &request.pregrasp,
+        Some(&target),
+        &tolerance,
+    ) else {
+        return Err(refusal);
+    };
+    // The line's last IK solution is the planned configuration up to the solver's
+    // tolerance, or (on the same branch) close to it; another branch is refused.
+    let end = path.end();
+    let apart_rad = (0..JOINTS)
+        .map(|j| (end[j] - target[j]).abs())
+        .fold(0.0, f64::max);
+    if apart_rad > config.path.max_joint_step_rad {
+        return Err(refusal);
+    }
+    if apart_rad > 0.0 {
+        path.waypoints.push(target);
+    }
+    match checked_motion(
+        check,
+        config.palm_speed_m_s,
+        PHASE,
+        NAME,
+        &path.waypoints,
+        Some(&path),
+        hand,
+    ) {
+        Ok(report) => Ok((report, path.waypoints.clone(), Some(path))),
+        Err(e) => {
+            tracing::debug!("pregrasp move along the palm line refused too: {e}");
+            Err(refusal)
+        }
+    }
+}
+
+/// The configuration at which the palm's straight line from `current` to `pregrasp`
+/// ends, solved continuously from `current` with the pre-grasp move's tolerance:
+/// pre-grasp joints that [`pregrasp_move`] can reach along the line. `None` where
+/// the line has no continuous solution.
+pub fn pregrasp_line_end(
+    robot: &crate::robot::Robot,
+    config: &ExecutorConfig,
+    current: &ArmJoints,
+    pregrasp: &crate::geometry::Pose,
+) -> Option<ArmJoints> {
+    straight_line(robot, current, pregrasp, None, &pregrasp_tolerance(config))
+        .ok()
+        .map(|path| path.end())
+}
+
+/// The pre-grasp move's straight-line tolerance: loose, through free space.
+fn pregrasp_tolerance(config: &ExecutorConfig) -> PathTolerance {
+    PathTolerance {
+        position_m: PREGRASP_LINE_POSITION_M.max(config.path.position_m),
+        rotation_rad: PREGRASP_LINE_ROTATION_RAD.max(config.path.rotation_rad),
+        ..config.path
+    }
 }

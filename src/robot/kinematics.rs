@@ -192,6 +192,55 @@ impl ArmKinematics {
             .map(|i| (i, q[i]))
     }
 
+    /// The other configurations within the limits that put the palm where `q` does,
+    /// nearest to `near` first (largest joint difference). In the LBR's chain (roll and
+    /// pitch axes alternating on one line) each roll–pitch–roll triple — shoulder
+    /// (joints 1–3), elbow (3–5), wrist (5–7) — gives the same motion with both rolls
+    /// turned by half a turn and the pitch negated: `Rz(a + pi) Ry(-b) Rz(c + pi) =
+    /// Rz(a) Ry(b) Rz(c)`. Only the links between the two rolls turn, about their own
+    /// axis. Candidates are kept only where the palm pose matches `q`'s, so another
+    /// chain simply has none.
+    pub fn equivalents(&self, q: &ArmJoints, near: &ArmJoints) -> Vec<ArmJoints> {
+        const TRIPLES: [usize; 3] = [0, 2, 4];
+        let palm = self.palm(q);
+        let mut found: Vec<ArmJoints> = Vec::new();
+        for flips in 1u8..8 {
+            let mut c = *q;
+            let mut within = true;
+            for (bit, &first) in TRIPLES.iter().enumerate() {
+                if flips & (1 << bit) == 0 {
+                    continue;
+                }
+                c[first + 1] = -c[first + 1];
+                for roll in [first, first + 2] {
+                    // Half a turn either way: the one within the limits nearest `near`.
+                    let turned = [
+                        c[roll] + std::f64::consts::PI,
+                        c[roll] - std::f64::consts::PI,
+                    ]
+                    .into_iter()
+                    .filter(|v| *v >= self.lower_rad[roll] && *v <= self.upper_rad[roll])
+                    .min_by(|a, b| (a - near[roll]).abs().total_cmp(&(b - near[roll]).abs()));
+                    match turned {
+                        Some(v) => c[roll] = v,
+                        None => within = false,
+                    }
+                }
+            }
+            let same = crate::geometry::pose_error(&self.palm(&c), &palm);
+            if within && self.out_of_limits(&c).is_none() && same.0 < 1e-9 && same.1 < 1e-9 {
+                found.push(c);
+            }
+        }
+        let apart = |c: &ArmJoints| {
+            (0..ARM_DOF)
+                .map(|j| (c[j] - near[j]).abs())
+                .fold(0.0, f64::max)
+        };
+        found.sort_by(|a, b| apart(a).total_cmp(&apart(b)));
+        found
+    }
+
     /// `q` clamped into the joint limits.
     pub fn clamp(&self, q: &ArmJoints) -> ArmJoints {
         std::array::from_fn(|i| q[i].clamp(self.lower_rad[i], self.upper_rad[i]))
@@ -372,5 +421,41 @@ mod tests {
         let poses = robot.link_poses(&[0.0; ARM_DOF], &closed);
         let dir = (poses[palm].inverse() * poses[f3]).rotation * -Vector3::x();
         assert!(dir.y < -0.5 && dir.z > 0.5, "{dir:?}");
+    }
+
+    #[test]
+    fn equivalent_configurations_put_the_palm_in_the_same_place_within_the_limits() {
+        let robot = shipped_robot();
+        let arm = robot.arm();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(17);
+        let mut counted = 0;
+        for _ in 0..200 {
+            let q: ArmJoints = std::array::from_fn(|j| {
+                rng.gen_range(0.6 * arm.lower_rad[j]..0.6 * arm.upper_rad[j])
+            });
+            let near = [0.0; ARM_DOF];
+            let found = arm.equivalents(&q, &near);
+            let palm = arm.palm(&q);
+            let apart = |c: &ArmJoints| {
+                (0..ARM_DOF)
+                    .map(|j| (c[j] - near[j]).abs())
+                    .fold(0.0, f64::max)
+            };
+            for pair in found.windows(2) {
+                assert!(apart(&pair[0]) <= apart(&pair[1]));
+            }
+            for c in &found {
+                assert!(arm.out_of_limits(c).is_none());
+                let (dp, dr) = crate::geometry::pose_error(&arm.palm(c), &palm);
+                assert!(dp < 1e-9 && dr < 1e-9, "{c:?} of {q:?}: {dp} m, {dr} rad");
+                assert!((0..ARM_DOF).any(|j| (c[j] - q[j]).abs() > 1.0));
+            }
+            counted += found.len();
+        }
+        assert!(counted > 200, "{counted}");
+        // Rolls at least 10 degrees off zero (the half turn fits within +-170
+        // degrees) and pitches within the limits: all seven flips.
+        let q = [1.0, -0.5, -1.0, 1.2, 2.0, -0.7, 0.5];
+        assert_eq!(arm.equivalents(&q, &q).len(), 7);
     }
 }
