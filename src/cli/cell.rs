@@ -339,8 +339,16 @@ impl TrialLine {
         let lab = self
             .lab
             .map_or(String::new(), |l| format!("  [lab: {}]", l.text()));
+        // No grasp command (nothing planned): a dash, not NaN.
+        let or_dash = |ms: f64| {
+            if ms.is_finite() {
+                format!("{ms:.0}")
+            } else {
+                "-".to_string()
+            }
+        };
         format!(
-            "trial {} {} #{} at ({:.3}, {:.3}) yaw {:+.2} {} {}: {}{}  snapshot->grasp command {:.0} ms [perceive {:.0}, plan {:.0}, to command {:.0}; capture {:.0}]  execute {:.1} s{lab}",
+            "trial {} {} #{} at ({:.3}, {:.3}) yaw {:+.2} {} {}: {}{}  snapshot->grasp command {} ms [perceive {:.0}, plan {:.0}, to command {}; capture {:.0}]  execute {:.1} s{lab}",
             self.trial_id,
             self.object,
             self.placement,
@@ -351,10 +359,10 @@ impl TrialLine {
             self.method,
             self.grade,
             cause,
-            self.snapshot_to_grasp_command_ms,
+            or_dash(self.snapshot_to_grasp_command_ms),
             self.perceive_ms,
             self.plan_ms,
-            command_ms,
+            or_dash(command_ms),
             self.capture_ms,
             self.execute_ms * 1e-3
         )

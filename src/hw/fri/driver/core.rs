@@ -104,6 +104,11 @@ impl DriverCore {
 
     pub(super) fn push(&mut self, event: FriEvent) {
         match &event {
+            // A guarded move stopping on contact is the approach working.
+            FriEvent::MotionAborted {
+                error: FriError::Contact { .. },
+                ..
+            } => tracing::info!("FRI: {event:?}"),
             FriEvent::DroppedToMonitor { .. }
             | FriEvent::MeasurementLate { .. }
             | FriEvent::MotionAborted { .. }
