@@ -121,17 +121,9 @@ struct SimBench {
     median_start_mean_epsilon: f64,
     median_mean_epsilon: f64,
     median_refine_evaluations: f64,
-    /// FNV-1a hash of every planned grasp (Laplace, laplace-sim, and its executable
-    /// joints) as JSON: equal before and after a change that must not change plans.
+    /// Digest of every planned grasp (Laplace, laplace-sim, and its executable
+    /// joints) as JSON ([`super::digest`]).
     plans_digest: String,
-}
-
-/// The 64-bit FNV-1a hash of `bytes`, as 16 hex digits.
-fn fnv1a(bytes: &[u8]) -> String {
-    let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-    });
-    format!("{hash:016x}")
 }
 
 /// Laplace and laplace-sim on `repeats` problems of the database at `dir`: every
@@ -185,7 +177,7 @@ fn sim_bench(
             })
             .collect();
         let grasps = example_grasps(&db, &fits, task)?;
-        let cpu = process_cpu_ms();
+        let cpu = super::cpu_ms(false);
         let (t, out) = time_ms(|| {
             plan(
                 &fits,
@@ -211,7 +203,7 @@ fn sim_bench(
         };
         let refined = refine_over_db(&problem, &out.plan.grasp, &SimRefineOptions::for_cell(cell))?;
         let rt = start.elapsed().as_secs_f64() * 1e3;
-        cpu_ms.push(process_cpu_ms() - cpu);
+        cpu_ms.push(super::cpu_ms(false) - cpu);
         refine_ms.push(rt);
         total.push(t + rt);
         let mut grasp = refined.grasp.clone();
@@ -237,7 +229,7 @@ fn sim_bench(
         median_start_mean_epsilon: median(&mut before),
         median_mean_epsilon: median(&mut after),
         median_refine_evaluations: median(&mut evals),
-        plans_digest: fnv1a(serde_json::to_string(&planned)?.as_bytes()),
+        plans_digest: super::digest(serde_json::to_string(&planned)?.as_bytes()),
     })
 }
 
@@ -245,11 +237,6 @@ fn sim_bench(
 /// is doing.
 fn thread_cpu_ms() -> f64 {
     crate::sys::cpu_time_ms(true)
-}
-
-/// CPU time of the whole process, every thread (ms).
-fn process_cpu_ms() -> f64 {
-    crate::sys::cpu_time_ms(false)
 }
 
 fn time_ms(f: impl FnOnce() -> PlanOutcome) -> (f64, PlanOutcome) {
