@@ -21,13 +21,14 @@ use crate::fsio::FileError;
 use crate::geometry::{params_from_pose, Pose, PoseJson, PoseParams};
 use crate::mesh::procedural::Category;
 use crate::mesh::TriMesh;
-use crate::quality::autograsp::{AutoGraspOptions, GraspSimError};
+use crate::quality::autograsp::{AutoGraspOptions, GraspObject, GraspSimError};
 use crate::quality::stability::StabilityOptions;
 use crate::quality::QualityParams;
 use crate::robot::PreshapeRad;
 use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 /// The database file inside a database directory.
 pub const DATABASE_FILE: &str = "category.json";
@@ -316,6 +317,8 @@ pub struct CategoryDb {
     pub file: DatabaseFile,
     /// Each model's mesh, in `file.models` order.
     pub meshes: Vec<TriMesh>,
+    /// Each model's grasp object, prepared on first use ([`CategoryDb::grasp_object`]).
+    objects: Vec<OnceLock<GraspObject>>,
 }
 
 impl CategoryDb {
@@ -339,8 +342,22 @@ impl CategoryDb {
         Ok(CategoryDb {
             dir: dir.to_path_buf(),
             file,
+            objects: meshes.iter().map(|_| OnceLock::new()).collect(),
             meshes,
         })
+    }
+
+    /// The grasp object of model `index` (its mesh with the tree and normals the
+    /// grasp simulator queries, no table), prepared once and kept: a planner that
+    /// simulates grasps on every trial does not rebuild it each time.
+    pub fn grasp_object(&self, index: usize) -> Result<&GraspObject, GraspSimError> {
+        let cell = &self.objects[index];
+        if let Some(object) = cell.get() {
+            return Ok(object);
+        }
+        let path = self.dir.join(&self.file.models[index].mesh);
+        let object = GraspObject::new(&self.meshes[index], &path)?;
+        Ok(cell.get_or_init(|| object))
     }
 
     /// The grasps of `task`.

@@ -80,6 +80,41 @@ impl Databases {
         }
         Ok(&self.loaded[category])
     }
+
+    /// Loads every category's database and prepares its models' grasp objects
+    /// (what `laplace-sim` simulates on), so that no trial waits for them. A
+    /// database that fails is logged here and fails its trials when they come.
+    pub fn preload(&mut self) -> Result<(), CellError> {
+        for category in super::perceive::categories(&self.dir)? {
+            let started = std::time::Instant::now();
+            let prepared = self.get(&category).and_then(|db| {
+                db.file
+                    .models
+                    .iter()
+                    .enumerate()
+                    .try_for_each(|(i, model)| {
+                        db.grasp_object(i)
+                            .map(|_| ())
+                            .map_err(|source| CellError::Category {
+                                category: category.clone(),
+                                source: Box::new(crate::category::CategoryError::Model {
+                                    model: model.name.clone(),
+                                    source,
+                                }),
+                            })
+                    })
+            });
+            match prepared {
+                Ok(()) => tracing::info!(
+                    %category,
+                    ms = started.elapsed().as_secs_f64() * 1e3,
+                    "database ready"
+                ),
+                Err(e) => tracing::error!(%category, "{e}"),
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Why a trial got no plan to execute.
@@ -320,6 +355,7 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
     let safety = SafetyCheck::new(Arc::clone(&robot), SafetyLimits::from_cell(config, &robot));
     let motions = ExecutorConfig::from_cell(config);
     let mut dbs = Databases::new(db_dir);
+    dbs.preload()?;
     let stage = Stage::start(domain, "plan")?;
     let plans = stage.publisher::<GraspPlan>()?;
     let fits_sub = stage.subscriber::<Fits>()?;

@@ -9,7 +9,7 @@
 //! (NaN) points are ignored. Seeded.
 
 use super::kdtree::KdIndex;
-use super::voxel::voxel_downsample;
+use super::voxel::voxel_downsample_points;
 use super::PointCloud;
 use crate::config::CellConfig;
 use crate::geometry::Pose;
@@ -358,30 +358,28 @@ pub fn segment_object(
 ) -> Result<PointCloud, SegmentError> {
     params.check()?;
     let transform = base_from_camera.cast::<f32>();
-    let valid: Vec<Point3<f32>> = cloud_camera.valid_points().map(|p| transform * p).collect();
-    if valid.is_empty() {
+    let (lo, hi) = (params.workspace_min_m, params.workspace_max_m);
+    let mut valid = 0;
+    let inside: Vec<Point3<f32>> = cloud_camera
+        .valid_points()
+        .map(|p| transform * p)
+        .inspect(|_| valid += 1)
+        .filter(|p| (0..3).all(|k| (lo[k]..=hi[k]).contains(&(p[k] as f64))))
+        .collect();
+    if valid == 0 {
         return Err(SegmentError::NoValidPoints {
             total: cloud_camera.len(),
         });
     }
-    let (lo, hi) = (params.workspace_min_m, params.workspace_max_m);
-    let inside: Vec<Point3<f32>> = valid
-        .iter()
-        .filter(|p| (0..3).all(|k| (lo[k]..=hi[k]).contains(&(p[k] as f64))))
-        .copied()
-        .collect();
     if inside.is_empty() {
         return Err(SegmentError::EmptyWorkspace {
-            valid: valid.len(),
+            valid,
             min_m: lo,
             max_m: hi,
         });
     }
     let up = Vector3::z();
-    let coarse = voxel_downsample(
-        &PointCloud::from_points(inside.clone()),
-        params.plane_voxel_m,
-    );
+    let coarse = voxel_downsample_points(&inside, params.plane_voxel_m);
     let min_inliers = (params.plane_min_fraction * coarse.len() as f64).ceil() as usize;
     let plane = fit_support_plane(&coarse.points, &up, params, min_inliers).unwrap_or(Plane {
         normal: up,

@@ -6,6 +6,8 @@
 
 use super::PointCloud;
 use nalgebra::{Point3, Vector3};
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hash, Hasher};
 
 /// The integer cell of `p` for cells of `voxel_m`.
 fn cell_of(p: &Point3<f32>, voxel_m: f32) -> [i32; 3] {
@@ -21,54 +23,113 @@ fn cell_of(p: &Point3<f32>, voxel_m: f32) -> [i32; 3] {
 pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f64) -> PointCloud {
     let normals = cloud
         .normals
-        .as_ref()
+        .as_deref()
         .filter(|n| n.len() == cloud.points.len());
-    let valid: Vec<usize> = (0..cloud.points.len())
-        .filter(|&i| {
-            let p = &cloud.points[i];
-            p.x.is_finite() && p.y.is_finite() && p.z.is_finite()
-        })
-        .collect();
+    downsample(&cloud.points, normals, voxel_m)
+}
+
+/// [`voxel_downsample`] of bare points (no normals), without copying them into a
+/// cloud first.
+pub fn voxel_downsample_points(points: &[Point3<f32>], voxel_m: f64) -> PointCloud {
+    downsample(points, None, voxel_m)
+}
+
+/// [`voxel_downsample`] of `points` with their `normals`, if any (one per point).
+fn downsample(
+    points: &[Point3<f32>],
+    normals: Option<&[Vector3<f32>]>,
+    voxel_m: f64,
+) -> PointCloud {
+    let valid = points
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| p.x.is_finite() && p.y.is_finite() && p.z.is_finite());
     if !(voxel_m > 0.0 && voxel_m.is_finite()) {
-        let mut out = PointCloud::from_points(valid.iter().map(|&i| cloud.points[i]).collect());
+        let valid: Vec<usize> = valid.map(|(i, _)| i).collect();
+        let mut out = PointCloud::from_points(valid.iter().map(|&i| points[i]).collect());
         out.normals = normals.map(|n| valid.iter().map(|&i| n[i]).collect());
         return out;
     }
     let voxel = voxel_m as f32;
-    let mut keyed: Vec<([i32; 3], usize)> = valid
+    // Each cell's sums in index order (as a sort by cell and index would add them),
+    // then the cells in order of their coordinates.
+    let mut cells: HashMap<CellKey, Cell, BuildHasherDefault<CellHasher>> = HashMap::default();
+    for (i, p) in valid {
+        let cell = cells.entry(CellKey(cell_of(p, voxel))).or_insert(Cell {
+            sum: Vector3::zeros(),
+            normal: Vector3::zeros(),
+            count: 0,
+            first: i,
+        });
+        cell.sum += p.coords.cast::<f64>();
+        if let Some(n) = normals {
+            cell.normal += n[i];
+        }
+        cell.count += 1;
+    }
+    let mut cells: Vec<(CellKey, Cell)> = cells.into_iter().collect();
+    cells.sort_unstable_by_key(|(key, _)| key.0);
+    let out_points = cells
         .iter()
-        .map(|&i| (cell_of(&cloud.points[i], voxel), i))
+        .map(|(_, c)| Point3::from((c.sum / c.count as f64).cast::<f32>()))
         .collect();
-    keyed.sort_unstable();
-    let mut points = Vec::new();
-    let mut out_normals = Vec::new();
-    let mut start = 0;
-    while start < keyed.len() {
-        let key = keyed[start].0;
-        let end = start + keyed[start..].partition_point(|(k, _)| *k == key);
-        let mut sum = Vector3::<f64>::zeros();
-        let mut normal = Vector3::<f32>::zeros();
-        for &(_, i) in &keyed[start..end] {
-            sum += cloud.points[i].coords.cast::<f64>();
-            if let Some(n) = normals {
-                normal += n[i];
-            }
-        }
-        points.push(Point3::from((sum / (end - start) as f64).cast::<f32>()));
-        if normals.is_some() {
-            // Normals that disagree in one cell (both sides of a thin wall) keep
-            // the first one rather than a meaningless mean.
-            let first = normals.map(|n| n[keyed[start].1]).unwrap_or_default();
-            let agree = normal.norm() >= 0.5 * (end - start) as f32;
-            out_normals.push(if agree { normal.normalize() } else { first });
-        }
-        start = end;
-    }
-    let mut out = PointCloud::from_points(points);
-    if normals.is_some() {
-        out.normals = Some(out_normals);
-    }
+    // Normals that disagree in one cell (both sides of a thin wall) keep the first
+    // one rather than a meaningless mean.
+    let out_normals = normals.map(|n| {
+        cells
+            .iter()
+            .map(|(_, c)| {
+                if c.normal.norm() >= 0.5 * c.count as f32 {
+                    c.normal.normalize()
+                } else {
+                    n[c.first]
+                }
+            })
+            .collect()
+    });
+    let mut out = PointCloud::from_points(out_points);
+    out.normals = out_normals;
     out
+}
+
+/// The points of one occupied cell so far.
+struct Cell {
+    sum: Vector3<f64>,
+    normal: Vector3<f32>,
+    count: usize,
+    /// The cell's first point.
+    first: usize,
+}
+
+/// A cell's integer coordinates, hashed in one multiply-mix.
+#[derive(Clone, Copy, PartialEq, Eq)]
+struct CellKey([i32; 3]);
+
+impl Hash for CellKey {
+    fn hash<H: Hasher>(&self, state: &mut H) {
+        let [x, y, z] = self.0.map(|c| u64::from(c as u32));
+        state.write_u64(x ^ y.rotate_left(21) ^ z.rotate_left(42));
+    }
+}
+
+/// The hasher of [`CellKey`]: a multiplicative mix of its one word.
+#[derive(Default)]
+struct CellHasher(u64);
+
+impl Hasher for CellHasher {
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(u64::from(b));
+        }
+    }
+
+    fn write_u64(&mut self, word: u64) {
+        self.0 = (self.0 ^ word).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    }
+
+    fn finish(&self) -> u64 {
+        self.0 ^ (self.0 >> 29)
+    }
 }
 
 /// Downsamples `cloud` on cells of `voxel_m` (m), doubled until at most `max_points`
@@ -88,6 +149,65 @@ pub fn voxel_downsample_to(cloud: &PointCloud, voxel_m: f64, max_points: usize) 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// The definition: every valid point sorted by (cell, index), each run of one
+    /// cell summed in that order.
+    fn by_sorting(cloud: &PointCloud, voxel_m: f64) -> PointCloud {
+        let normals = cloud.normals.as_ref().unwrap();
+        let mut keyed: Vec<([i32; 3], usize)> = (0..cloud.len())
+            .filter(|&i| cloud.points[i].iter().all(|c| c.is_finite()))
+            .map(|i| (cell_of(&cloud.points[i], voxel_m as f32), i))
+            .collect();
+        keyed.sort_unstable();
+        let (mut points, mut out_normals) = (Vec::new(), Vec::new());
+        for run in keyed.chunk_by(|a, b| a.0 == b.0) {
+            let sum: Vector3<f64> = run.iter().fold(Vector3::zeros(), |s, &(_, i)| {
+                s + cloud.points[i].coords.cast::<f64>()
+            });
+            let normal: Vector3<f32> = run
+                .iter()
+                .fold(Vector3::zeros(), |s, &(_, i)| s + normals[i]);
+            points.push(Point3::from((sum / run.len() as f64).cast::<f32>()));
+            out_normals.push(if normal.norm() >= 0.5 * run.len() as f32 {
+                normal.normalize()
+            } else {
+                normals[run[0].1]
+            });
+        }
+        let mut out = PointCloud::from_points(points);
+        out.normals = Some(out_normals);
+        out
+    }
+
+    #[test]
+    fn the_cells_are_those_of_sorting_every_point_by_cell() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut cloud = PointCloud::from_points(
+            (0..20_000)
+                .map(|_| {
+                    Point3::new(
+                        rng.gen_range(-0.3..0.3),
+                        rng.gen_range(-0.3..0.3),
+                        rng.gen_range(-0.05..0.05),
+                    )
+                })
+                .collect(),
+        );
+        cloud.points[7] = Point3::new(f32::NAN, 0.0, 0.0);
+        // Normals up or down at random: some cells agree, some do not.
+        cloud.normals = Some(
+            (0..cloud.len())
+                .map(|_| Vector3::z() * if rng.gen_bool(0.8) { 1.0 } else { -1.0 })
+                .collect(),
+        );
+        for voxel_m in [0.004, 0.01, 0.05] {
+            assert_eq!(
+                voxel_downsample(&cloud, voxel_m),
+                by_sorting(&cloud, voxel_m)
+            );
+        }
+    }
 
     #[test]
     fn a_cap_coarsens_the_grid_until_the_points_fit() {

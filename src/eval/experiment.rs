@@ -20,7 +20,6 @@ use crate::plan::category::example_grasps;
 use crate::plan::{
     plan, Kernel, ModelFit, PlanError, PlanOptions, PlanOutcome, PlannedGrasp, Reachability,
 };
-use crate::quality::autograsp::GraspObject;
 use crate::robot::hand::HandModel;
 use crate::sim::camera::DepthCamera;
 use crate::sim::scene::TableBox;
@@ -439,15 +438,14 @@ fn test_object(
     name: String,
     base_from_object: Pose,
 ) -> Result<TestObject, EvalError> {
-    let path = target
+    let object = target
         .db
-        .dir
-        .join(&target.db.file.models[target.index].mesh);
-    let object = GraspObject::new(&target.db.meshes[target.index], &path)
+        .grasp_object(target.index)
         .map_err(|source| EvalError::Simulation {
             target: name.clone(),
             source,
         })?
+        .clone()
         .with_table(
             target
                 .db

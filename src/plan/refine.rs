@@ -410,15 +410,14 @@ pub fn refine_over_db(
                     model: f.name.clone(),
                     database: db.dir.clone(),
                 })?;
-            let path = db.dir.join(&db.file.models[i].mesh);
             let table = match table_height_m {
                 Some(h) => Some(h - f.base_from_model.translation.vector.z),
                 None => db.file.table_height_m,
             };
-            GraspObject::new(&db.meshes[i], &path)
-                .map(|o| o.with_table(table))
+            db.grasp_object(i)
+                .map(|o| o.clone().with_table(table))
                 .map_err(|e| PlanError::Parse {
-                    path,
+                    path: db.dir.join(&db.file.models[i].mesh),
                     message: e.to_string(),
                 })
         })

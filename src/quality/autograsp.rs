@@ -97,10 +97,10 @@ pub enum GraspSimError {
 }
 
 /// An object to grasp: its mesh with a BVH, the reference point and torque scale of
-/// the quality metric, and optionally the table it stands on.
+/// the quality metric, and optionally the table it stands on. Clones share the mesh.
 #[derive(Clone)]
 pub struct GraspObject {
-    mesh: parry3d_f64::shape::TriMesh,
+    mesh: std::sync::Arc<parry3d_f64::shape::TriMesh>,
     /// Centroid of the enclosed volume (object frame, m): the torque reference.
     pub centroid: Point3<f64>,
     /// Largest distance from the centroid to a vertex (m): the torque scale r.
@@ -153,7 +153,7 @@ impl GraspObject {
             .map(|v| (v - centroid).norm())
             .fold(0.0, f64::max);
         Ok(GraspObject {
-            mesh: parry,
+            mesh: std::sync::Arc::new(parry),
             centroid,
             torque_scale_m,
             table_height_m: None,
@@ -878,7 +878,7 @@ impl Sim<'_> {
                     return Some(Obstacle::Table);
                 }
             }
-            let mesh = &self.object.mesh;
+            let mesh = self.object.mesh();
             let hit = match shape.as_cuboid() {
                 // A box: prune the BVH with the oriented box, then exact SAT per triangle.
                 Some(cuboid) => {
@@ -1031,7 +1031,7 @@ impl Sim<'_> {
     fn contacts_of(&self, link: &HandLink, object_from_link: &Pose, out: &mut Vec<LinkContact>) {
         let reach = self.options.contact_distance_m;
         let merge = self.options.merge_distance_m;
-        let mesh = &self.object.mesh;
+        let mesh = self.object.mesh();
         let mut found: Vec<LinkContact> = Vec::new();
         for (local, shape) in &link.shapes {
             let pose = object_from_link * local;

@@ -14,6 +14,33 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use parry3d_f64::query;
 use parry3d_f64::shape::{Ball, Capsule, Cuboid, Cylinder, SharedShape};
 
+/// How far apart two bounding spheres (or a sphere and the table box) must be for
+/// the exact test to be skipped (m): far above the exact test's tolerance, so a
+/// skipped pair is one it would have found apart.
+pub const BROAD_PHASE_MARGIN_M: f64 = 1e-6;
+
+/// One collision shape of a link.
+#[derive(Clone)]
+struct LinkShape {
+    link_from_shape: Pose,
+    shape: SharedShape,
+    /// Centre of the shape's bounding sphere in the link frame.
+    centre: nalgebra::Point3<f64>,
+    radius_m: f64,
+}
+
+impl LinkShape {
+    fn new(link_from_shape: Pose, shape: SharedShape) -> LinkShape {
+        let sphere = shape.compute_local_bounding_sphere();
+        LinkShape {
+            centre: link_from_shape * sphere.center(),
+            radius_m: sphere.radius(),
+            link_from_shape,
+            shape,
+        }
+    }
+}
+
 /// What a configuration collides with.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
@@ -86,8 +113,8 @@ pub fn parry_shape(primitive: &Primitive) -> (SharedShape, Pose) {
 #[derive(Clone)]
 pub struct CollisionModel {
     names: Vec<String>,
-    /// Per link: (link_from_shape, shape).
-    shapes: Vec<Vec<(Pose, SharedShape)>>,
+    /// Per link: its shapes.
+    shapes: Vec<Vec<LinkShape>>,
     /// Links checked against the table.
     table_links: Vec<usize>,
     /// Link pairs checked against each other.
@@ -107,7 +134,7 @@ impl std::fmt::Debug for CollisionModel {
 impl CollisionModel {
     /// Builds the model and its allowed-collision pairs.
     pub fn new(description: &RobotDescription, table: &TableConfig) -> CollisionModel {
-        let shapes: Vec<Vec<(Pose, SharedShape)>> = description
+        let shapes: Vec<Vec<LinkShape>> = description
             .links
             .iter()
             .map(|l| {
@@ -115,7 +142,7 @@ impl CollisionModel {
                     .iter()
                     .map(|s| {
                         let (shape, local) = parry_shape(&s.primitive);
-                        (s.link_from_shape * local, shape)
+                        LinkShape::new(s.link_from_shape * local, shape)
                     })
                     .collect()
             })
@@ -167,15 +194,18 @@ impl CollisionModel {
     }
 
     fn links_touch(&self, a: usize, b: usize, poses: &[Pose]) -> bool {
-        self.shapes[a].iter().any(|(la, sa)| {
-            self.shapes[b].iter().any(|(lb, sb)| {
-                query::intersection_test(
-                    &(poses[a] * la),
-                    sa.as_ref(),
-                    &(poses[b] * lb),
-                    sb.as_ref(),
-                )
-                .unwrap_or(true)
+        self.shapes[a].iter().any(|sa| {
+            let centre_a = poses[a] * sa.centre;
+            self.shapes[b].iter().any(|sb| {
+                let apart = sa.radius_m + sb.radius_m + BROAD_PHASE_MARGIN_M;
+                (centre_a - poses[b] * sb.centre).norm_squared() <= apart * apart
+                    && query::intersection_test(
+                        &(poses[a] * sa.link_from_shape),
+                        sa.shape.as_ref(),
+                        &(poses[b] * sb.link_from_shape),
+                        sb.shape.as_ref(),
+                    )
+                    .unwrap_or(true)
             })
         })
     }
@@ -183,14 +213,19 @@ impl CollisionModel {
     /// True when link `link` at pose `world_from_link` touches the table.
     pub fn link_hits_table(&self, link: usize, world_from_link: &Pose) -> bool {
         let (table_pose, table) = &self.table;
-        self.shapes[link].iter().any(|(local, shape)| {
-            query::intersection_test(
-                &(world_from_link * local),
-                shape.as_ref(),
-                table_pose,
-                table,
-            )
-            .unwrap_or(true)
+        self.shapes[link].iter().any(|s| {
+            // How far the sphere's centre is outside the box, per axis of the box.
+            let local = table_pose.inverse_transform_point(&(world_from_link * s.centre));
+            let outside = (local.coords.abs() - table.half_extents).sup(&Vector3::zeros());
+            let apart = s.radius_m + BROAD_PHASE_MARGIN_M;
+            outside.norm_squared() <= apart * apart
+                && query::intersection_test(
+                    &(world_from_link * s.link_from_shape),
+                    s.shape.as_ref(),
+                    table_pose,
+                    table,
+                )
+                .unwrap_or(true)
         })
     }
 
@@ -228,5 +263,74 @@ impl CollisionModel {
             .map(|&l| Collision::Table {
                 link: self.names[l].clone(),
             })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::kinematics::ARM_DOF;
+    use crate::robot::HandPose;
+    use rand::{Rng, SeedableRng};
+
+    /// The exact tests alone, without the bounding spheres.
+    fn exact_touch(model: &CollisionModel, a: usize, b: usize, poses: &[Pose]) -> bool {
+        model.shapes[a].iter().any(|sa| {
+            model.shapes[b].iter().any(|sb| {
+                query::intersection_test(
+                    &(poses[a] * sa.link_from_shape),
+                    sa.shape.as_ref(),
+                    &(poses[b] * sb.link_from_shape),
+                    sb.shape.as_ref(),
+                )
+                .unwrap_or(true)
+            })
+        })
+    }
+
+    fn exact_on_table(model: &CollisionModel, link: usize, pose: &Pose) -> bool {
+        let (table_pose, table) = &model.table;
+        model.shapes[link].iter().any(|s| {
+            query::intersection_test(
+                &(pose * s.link_from_shape),
+                s.shape.as_ref(),
+                table_pose,
+                table,
+            )
+            .unwrap_or(true)
+        })
+    }
+
+    /// Every pair's and every link's verdict is the exact test's, at random arm and
+    /// hand configurations inside the limits (many of them colliding).
+    #[test]
+    fn bounding_spheres_never_change_a_verdict() {
+        let robot = crate::robot::shipped_robot();
+        let model = &robot.collision;
+        let arm = robot.arm();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let (mut touching, mut on_table) = (0, 0);
+        for _ in 0..2000 {
+            let mut q = [0.0; ARM_DOF];
+            for (i, v) in q.iter_mut().enumerate() {
+                *v = rng.gen_range(arm.lower_rad[i]..=arm.upper_rad[i]);
+            }
+            let hand = HandPose {
+                spread_rad: rng.gen_range(0.0..std::f64::consts::PI),
+                flex_rad: [(); 3].map(|()| rng.gen_range(0.0..2.44)),
+            };
+            let poses = robot.link_poses(&q, &hand);
+            for &(a, b) in &model.pairs {
+                let exact = exact_touch(model, a, b, &poses);
+                assert_eq!(model.links_touch(a, b, &poses), exact, "{q:?} {a} {b}");
+                touching += usize::from(exact);
+            }
+            for &l in &model.table_links {
+                let exact = exact_on_table(model, l, &poses[l]);
+                assert_eq!(model.link_hits_table(l, &poses[l]), exact, "{q:?} {l}");
+                on_table += usize::from(exact);
+            }
+        }
+        assert!(touching > 100 && on_table > 100, "{touching} {on_table}");
     }
 }

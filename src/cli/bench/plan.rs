@@ -1,8 +1,11 @@
 //! `cell bench plan`: grasp planning time per kernel, with reachability.
 
+use crate::cell::harness::HOME_JOINTS_RAD;
+use crate::cell::plan::executable_joints;
 use crate::cli::emit;
 use crate::cli::plan::load_db;
 use crate::config::CellConfig;
+use crate::execute::{ExecutorConfig, SafetyCheck, SafetyLimits};
 use crate::plan::category::example_grasps;
 use crate::plan::refine::{refine_over_db, DbProblem, SimRefineOptions};
 use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
@@ -14,6 +17,7 @@ use clap::Args;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Options of `cell bench plan`.
@@ -99,23 +103,34 @@ struct SimBench {
     db: PathBuf,
     task: String,
     repeats: usize,
+    /// Preparing the models' grasp objects, once per database (ms).
+    grasp_objects_ms: f64,
     /// Plain Laplace (with reachability), ms.
     laplace_median_ms: f64,
     /// laplace-sim: Laplace plus the refinement, ms.
     laplace_sim_median_ms: f64,
     /// The refinement alone, ms.
     refine_median_ms: f64,
+    /// Process CPU time of laplace-sim, all threads (ms): its cost whatever else
+    /// the machine is doing.
+    laplace_sim_median_cpu_ms: f64,
+    /// Joint solutions the executor accepts for the laplace-sim grasp, from the
+    /// cell's home configuration (`cell-plan`'s last step), ms.
+    executable_median_ms: f64,
     /// Fit-weighted mean simulated epsilon before and after the refinement.
     median_start_mean_epsilon: f64,
     median_mean_epsilon: f64,
     median_refine_evaluations: f64,
+    /// Digest of every planned grasp (Laplace, laplace-sim, and its executable
+    /// joints) as JSON ([`super::digest`]).
+    plans_digest: String,
 }
 
 /// Laplace and laplace-sim on `repeats` problems of the database at `dir`: every
 /// model as a fit at a seeded placement near (0.6, 0), with a seeded fitting error.
 fn sim_bench(
     cell: &CellConfig,
-    robot: &Robot,
+    robot: &Arc<Robot>,
     dir: &Path,
     task: &str,
     repeats: usize,
@@ -123,6 +138,11 @@ fn sim_bench(
 ) -> anyhow::Result<SimBench> {
     use rand::{Rng, SeedableRng};
     let db = load_db(dir)?;
+    let start = Instant::now();
+    for i in 0..db.meshes.len() {
+        db.grasp_object(i)?;
+    }
+    let grasp_objects_ms = start.elapsed().as_secs_f64() * 1e3;
     let hand = HandModel::load(cell)?;
     // As cell-plan plans a Laplace trial: the baseline is not repaired.
     let options = PlanOptions {
@@ -130,7 +150,11 @@ fn sim_bench(
         repair_best_single: false,
         ..PlanOptions::new(Kernel::LAPLACE_DEFAULT, cell)
     };
+    let safety = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(cell, robot));
+    let motions = ExecutorConfig::from_cell(cell);
+    let robot: &Robot = robot;
     let (mut plain, mut total, mut refine_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut cpu_ms, mut executable_ms, mut planned) = (Vec::new(), Vec::new(), Vec::new());
     let (mut before, mut after, mut evals) = (Vec::new(), Vec::new(), Vec::new());
     for r in 0..repeats {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + r as u64);
@@ -153,6 +177,7 @@ fn sim_bench(
             })
             .collect();
         let grasps = example_grasps(&db, &fits, task)?;
+        let cpu = super::cpu_ms(false);
         let (t, out) = time_ms(|| {
             plan(
                 &fits,
@@ -178,8 +203,15 @@ fn sim_bench(
         };
         let refined = refine_over_db(&problem, &out.plan.grasp, &SimRefineOptions::for_cell(cell))?;
         let rt = start.elapsed().as_secs_f64() * 1e3;
+        cpu_ms.push(super::cpu_ms(false) - cpu);
         refine_ms.push(rt);
         total.push(t + rt);
+        let mut grasp = refined.grasp.clone();
+        let start = Instant::now();
+        let executable =
+            executable_joints(robot, &safety, &motions, &mut grasp, &HOME_JOINTS_RAD).is_ok();
+        executable_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        planned.push((out.plan.grasp, grasp, executable));
         before.push(refined.start_mean_epsilon);
         after.push(refined.mean_epsilon);
         evals.push(refined.evaluations as f64);
@@ -188,12 +220,16 @@ fn sim_bench(
         db: dir.to_path_buf(),
         task: task.to_string(),
         repeats,
+        grasp_objects_ms,
         laplace_median_ms: median(&mut plain),
         laplace_sim_median_ms: median(&mut total),
         refine_median_ms: median(&mut refine_ms),
+        laplace_sim_median_cpu_ms: median(&mut cpu_ms),
+        executable_median_ms: median(&mut executable_ms),
         median_start_mean_epsilon: median(&mut before),
         median_mean_epsilon: median(&mut after),
         median_refine_evaluations: median(&mut evals),
+        plans_digest: super::digest(serde_json::to_string(&planned)?.as_bytes()),
     })
 }
 
@@ -222,8 +258,8 @@ pub fn bench(config: &Path, args: PlanBenchArgs) -> anyhow::Result<ExitCode> {
         "--models, --grasps-per-model and --repeats must be > 0"
     );
     let cell = CellConfig::load(config)?;
-    let robot = Robot::load(&cell)?;
-    let reach: Option<&dyn Reachability> = Some(&robot);
+    let robot = Arc::new(Robot::load(&cell)?);
+    let reach: Option<&dyn Reachability> = Some(robot.as_ref());
     let spec = |r: usize, object_xy_m: [f64; 2]| SyntheticSpec {
         models: args.models,
         grasps_per_model: args.grasps_per_model,

@@ -84,6 +84,7 @@ struct RegisterBench {
     /// The model the views show.
     view_shows: String,
     model_preparation_ms: f64,
+    segment: SegmentBench,
     views: Vec<ViewBench>,
 }
 
@@ -109,14 +110,14 @@ fn bench_mug_has_handle(seed: u64, index: usize) -> bool {
 }
 
 /// Renders mug `index` on the table at `truth` with the configured camera, its
-/// resolution scaled by `scale`, and segments it.
-fn bench_view(
+/// resolution scaled by `scale`: the camera's cloud and `base_from_camera`.
+fn bench_frame(
     config: &CellConfig,
     index: usize,
     truth: &Pose,
     scale: f64,
     seed: u64,
-) -> anyhow::Result<PointCloud> {
+) -> anyhow::Result<(PointCloud, Pose)> {
     let mut camera = DepthCamera::from_config(&config.camera, config.base_from_camera());
     let i = &mut camera.intrinsics;
     i.width_px = (i.width_px as f64 * scale).round() as u32;
@@ -127,12 +128,69 @@ fn bench_view(
     i.cy_px = (i.cy_px + 0.5) * scale - 0.5;
     let mut scene = Scene::new(Some(TableBox::from(&config.table)));
     scene.add("shown", bench_mug(seed, index), *truth)?;
-    let cloud = camera.render(&scene, seed).to_cloud();
+    Ok((
+        camera.render(&scene, seed).to_cloud(),
+        camera.base_from_camera,
+    ))
+}
+
+/// [`bench_frame`] segmented: the object's points (base frame).
+fn bench_view(
+    config: &CellConfig,
+    index: usize,
+    truth: &Pose,
+    scale: f64,
+    seed: u64,
+) -> anyhow::Result<PointCloud> {
+    let (cloud, base_from_camera) = bench_frame(config, index, truth, scale, seed)?;
     Ok(segment_object(
         &cloud,
-        &camera.base_from_camera,
+        &base_from_camera,
         &SegmentParams::for_cell(config),
     )?)
+}
+
+/// Segmentation of the configured camera's frame (`cell-perceive`'s first step).
+#[derive(Debug, Serialize)]
+struct SegmentBench {
+    /// Points of the frame, missing ones included.
+    camera_points: usize,
+    object_points: usize,
+    median_ms: f64,
+    /// Digest of the object's points ([`super::digest`]).
+    digest: String,
+}
+
+/// Times [`segment_object`] on the frame of the configured camera, `repeats` times.
+fn segment_bench(
+    config: &CellConfig,
+    index: usize,
+    truth: &Pose,
+    repeats: usize,
+    seed: u64,
+) -> anyhow::Result<(SegmentBench, PointCloud)> {
+    let (frame, base_from_camera) = bench_frame(config, index, truth, 1.0, seed)?;
+    let params = SegmentParams::for_cell(config);
+    let mut ms = Vec::new();
+    let mut object = PointCloud::default();
+    for _ in 0..repeats {
+        let start = Instant::now();
+        object = segment_object(&frame, &base_from_camera, &params)?;
+        ms.push(start.elapsed().as_secs_f64() * 1e3);
+    }
+    let bytes: Vec<u8> = object
+        .points
+        .iter()
+        .flat_map(|p| [p.x, p.y, p.z])
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    let bench = SegmentBench {
+        camera_points: frame.len(),
+        object_points: object.len(),
+        median_ms: median(&mut ms),
+        digest: super::digest(&bytes),
+    };
+    Ok((bench, object))
 }
 
 /// Runs `cell bench register`.
@@ -162,9 +220,8 @@ pub fn bench(config_path: &Path, args: RegisterBenchArgs) -> anyhow::Result<Exit
     let truth = pose_from_params(&[0.6, 0.03, config.table.height_m, 0.0, 0.0, 0.87]);
     // The configured camera's 640 x 480 sees a few thousand points of a mug; the
     // views are rendered at the resolutions that give about 6k and 28k.
-    let native = bench_view(&config, shown, &truth, 1.0, args.seed)?
-        .len()
-        .max(1) as f64;
+    let (segment, native) = segment_bench(&config, shown, &truth, args.repeats, args.seed)?;
+    let native = native.len().max(1) as f64;
     let views = [
         (
             "6k",
@@ -259,6 +316,7 @@ pub fn bench(config_path: &Path, args: RegisterBenchArgs) -> anyhow::Result<Exit
         seed: args.seed,
         view_shows: clouds[shown].0.clone(),
         model_preparation_ms,
+        segment,
         views: out,
     };
     crate::cli::emit(true, &report, |_| String::new())?;
