@@ -704,8 +704,16 @@ mod tests {
     /// A top-down grasp at (0.6, 0, 0.20) from 0.10 m above, solved independently
     /// of the executor.
     fn request(robot: &Robot) -> ExecutionRequest {
-        let palm = pose_from_params(&[0.6, 0.0, 0.20, PI, 0.0, PI]);
-        let pregrasp = pose_from_params(&[0.6, 0.0, 0.30, PI, 0.0, PI]);
+        request_between(
+            robot,
+            &pose_from_params(&[0.6, 0.0, 0.30, PI, 0.0, PI]),
+            &pose_from_params(&[0.6, 0.0, 0.20, PI, 0.0, PI]),
+        )
+    }
+
+    /// The grasp at `palm` from `pregrasp`, solved from home; spread 0.3 rad.
+    fn request_between(robot: &Robot, pregrasp: &Pose, palm: &Pose) -> ExecutionRequest {
+        let (pregrasp, palm) = (*pregrasp, *palm);
         let pre = robot.reach(&pregrasp, &HandPose::OPEN, &[HOME]).unwrap();
         let grasp = robot.reach(&palm, &HandPose::OPEN, &[pre.joints]).unwrap();
         ExecutionRequest {
@@ -1395,25 +1403,14 @@ mod tests {
         // swing from home drags the fingers through the table.
         let pregrasp = pose_from_params(&[0.5, 0.0, 0.09, 0.0, PI / 2.0, PI / 2.0]);
         let palm = pregrasp * Pose::translation(0.0, 0.0, 0.1);
-        let pre = robot.reach(&pregrasp, &HandPose::OPEN, &[HOME]).unwrap();
-        let grasp = robot.reach(&palm, &HandPose::OPEN, &[pre.joints]).unwrap();
-        let req = ExecutionRequest {
-            palm: PoseJson::from(&palm),
-            pregrasp: PoseJson::from(&pregrasp),
-            joints_rad: grasp.joints,
-            pregrasp_joints_rad: pre.joints,
-            spread_rad: 0.3,
-            preshape_rad: crate::robot::PreshapeRad::OPEN,
-            task: None,
-            method: None,
-        };
+        let req = request_between(&robot, &pregrasp, &palm);
         let mut ex = rig.executor(&rig.arm);
         let direct = super::super::motions::checked_motion(
             ex.arm.safety(),
             ex.config.palm_speed_m_s,
             Phase::Validate,
             "pregrasp move",
-            &[HOME, pre.joints],
+            &[HOME, req.pregrasp_joints_rad],
             None,
             &crate::robot::PreshapeRad::OPEN.at_spread(0.3),
         );
