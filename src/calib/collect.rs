@@ -58,7 +58,7 @@ use crate::cloud::PointCloud;
 use crate::config::TableConfig;
 use crate::geometry::Pose;
 use crate::robot::collision::parry_shape;
-use crate::robot::kinematics::{ArmJoints, ARM_DOF};
+use crate::robot::kinematics::{joint_distance_rad, ArmJoints, ARM_DOF};
 use crate::robot::{HandPose, Robot, RobotError};
 use crate::sim::camera::Intrinsics;
 use nalgebra::{Isometry3, Matrix3, Point3, SymmetricEigen, Translation3, UnitQuaternion, Vector3};
@@ -639,9 +639,7 @@ impl Checker<'_> {
 
     /// Whether the straight joint-space move from `a` to `b` is collision-free.
     fn path_clear(&self, a: &ArmJoints, b: &ArmJoints) -> bool {
-        let span = (0..ARM_DOF)
-            .map(|i| (b[i] - a[i]).abs())
-            .fold(0.0, f64::max);
+        let span = joint_distance_rad(a, b);
         let steps = (span / self.options.max_joint_step_rad).ceil().max(1.0) as usize;
         (1..=steps).all(|s| {
             let t = s as f64 / steps as f64;
@@ -856,16 +854,11 @@ pub fn plan_poses(
     let mut left: Vec<PlannedPose> = chosen.iter().map(|&i| pool[i]).collect();
     let mut order = Vec::with_capacity(left.len());
     let mut at = *start;
-    let distance = |a: &ArmJoints, b: &ArmJoints| {
-        (0..ARM_DOF)
-            .map(|i| (a[i] - b[i]).abs())
-            .fold(0.0, f64::max)
-    };
     while !left.is_empty() {
         let (k, _) = left
             .iter()
             .enumerate()
-            .map(|(k, p)| (k, distance(&at, &p.joints)))
+            .map(|(k, p)| (k, joint_distance_rad(&at, &p.joints)))
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .expect("not empty");
         let mut pose = left.swap_remove(k);

@@ -17,7 +17,7 @@ use super::safety::SafetyCheck;
 use super::{ExecuteError, Phase};
 use crate::geometry::{pose_error, Pose};
 use crate::hw::fri::JOINTS;
-use crate::robot::kinematics::ArmJoints;
+use crate::robot::kinematics::{joint_distance_rad, ArmJoints};
 use crate::robot::HandPose;
 use crate::trajectory::Trajectory;
 use nalgebra::Translation3;
@@ -274,9 +274,7 @@ pub fn pregrasp_move(
     // The line's last IK solution is the planned configuration up to the solver's
     // tolerance, or (on the same branch) close to it; another branch is refused.
     let end = path.end();
-    let apart_rad = (0..JOINTS)
-        .map(|j| (end[j] - target[j]).abs())
-        .fold(0.0, f64::max);
+    let apart_rad = joint_distance_rad(&end, &target);
     if apart_rad > config.path.max_joint_step_rad {
         return Err(refusal);
     }
