@@ -14,7 +14,9 @@
 //! - [`search`]: hypotheses and the yaw sweep — seeds (each hypothesis, the same
 //!   flipped upside down, the model standing upright behind the target) settled
 //!   on the field, every distinct placement swept about the table normal, the
-//!   best turns polished on the field.
+//!   best turns polished on the field. Beyond the paper, placements tilted more
+//!   than `max_tilt_deg` from upright are dropped (the object stands on the table
+//!   as its models do).
 //! - [`refine`]: exact ICP ([`icp`]) of the best few in two passes, the second
 //!   with a tight rejection distance.
 //! - [`score`]: candidates are ranked in both directions — the truncated fitting
@@ -173,7 +175,11 @@ fn register_one(
     }
     stages.ransac_ms = ms(t0);
     let t1 = Instant::now();
-    let candidates = search::coarse_search(target, model, params, &hypotheses);
+    let candidates = search::upright(
+        search::coarse_search(target, model, params, &hypotheses),
+        params,
+        |c| c.model_from_target.inverse(),
+    );
     stages.coarse_ms = ms(t1);
     let t2 = Instant::now();
     let best = refine::refine(target, model, params, candidates);

@@ -122,6 +122,11 @@ pub struct RegisterParams {
     /// A fit whose heading is more than this (deg) from the agreed one is refined
     /// again from it; fits within it of each other agree.
     pub heading_consensus_deg: f64,
+    /// The object stands on the table as its models stand in their frames (beyond
+    /// the paper): placements whose +z is tilted more than this (deg) from `up`
+    /// are dropped from the search, unless none is left. A mug is not fitted
+    /// upside down. `None` (the paper's) keeps every tilt.
+    pub max_tilt_deg: Option<f64>,
 }
 
 /// How a registration's `eps` and `sigma` are scored.
@@ -187,6 +192,7 @@ impl Default for RegisterParams {
             keep_poor_fits: false,
             heading_consensus: true,
             heading_consensus_deg: 30.0,
+            max_tilt_deg: Some(30.0),
         }
     }
 }
@@ -195,12 +201,13 @@ impl RegisterParams {
     /// These parameters scored as the paper did (issue 19's `--paper`): the
     /// one-sided `eps` and `sigma`, poor registrations kept as fits, so that the
     /// fit weight rather than a threshold turns them down, and every model
-    /// registered alone (no heading consensus).
+    /// registered alone (no heading consensus), at any tilt.
     pub fn paper(self) -> RegisterParams {
         RegisterParams {
             fit_score: FitScore::OneSided,
             keep_poor_fits: true,
             heading_consensus: false,
+            max_tilt_deg: None,
             ..self
         }
     }
@@ -223,6 +230,7 @@ impl RegisterParams {
             ("rank_cap_m", self.rank_cap_m),
             ("heading_consensus_deg", self.heading_consensus_deg),
             ("seen_through_margin_m", self.seen_through_margin_m),
+            ("max_tilt_deg", self.max_tilt_deg.unwrap_or(1.0)),
         ];
         for (name, value) in positive {
             if !(value > 0.0 && value.is_finite()) {
@@ -312,11 +320,12 @@ mod tests {
             (
                 paper.fit_score,
                 paper.keep_poor_fits,
-                paper.heading_consensus
+                paper.heading_consensus,
+                paper.max_tilt_deg
             ),
-            (FitScore::OneSided, true, false)
+            (FitScore::OneSided, true, false, None)
         );
-        assert!(ours.heading_consensus);
+        assert!(ours.heading_consensus && ours.max_tilt_deg.is_some());
         assert_eq!(paper.model_points, 500, "the rest is kept");
     }
 

@@ -112,6 +112,30 @@ fn yaw_sweep(placements: &[Pose], model: &PreparedModel, params: &RegisterParams
     out
 }
 
+/// The tilt (rad) of a placement `target_from_model`: the angle between the
+/// model's +z and the table normal `up`.
+pub(super) fn tilt_rad(target_from_model: &Pose, up: &[f64; 3]) -> f64 {
+    (target_from_model.rotation * Vector3::z()).angle(&Vector3::from(*up))
+}
+
+/// The items whose placement (`target_from_model` of each) is tilted at most
+/// [`RegisterParams::max_tilt_deg`] from upright; all of them when none is, or
+/// without the limit.
+pub(super) fn upright<T>(items: Vec<T>, params: &RegisterParams, placement: impl Fn(&T) -> Pose) -> Vec<T> {
+    let Some(max_deg) = params.max_tilt_deg else {
+        return items;
+    };
+    let max = max_deg.to_radians();
+    if items.iter().any(|i| tilt_rad(&placement(i), &params.up) <= max) {
+        items
+            .into_iter()
+            .filter(|i| tilt_rad(&placement(i), &params.up) <= max)
+            .collect()
+    } else {
+        items
+    }
+}
+
 /// Coarse ICP on the model's nearest-point field, scored by the candidate cost.
 struct Coarse<'a> {
     target: &'a PreparedTarget,
@@ -219,6 +243,7 @@ pub(super) fn coarse_search(
         &sweep,
         &sweep_normals,
     );
+    let placements = upright(placements, params, |p| *p);
     let first: Vec<Candidate> = yaw_sweep(&placements, model, params)
         .iter()
         .map(|s| {
@@ -349,5 +374,30 @@ mod tests {
             .unwrap();
         let (dp, dr) = crate::geometry::pose_error(&best.model_from_target.inverse(), &truth);
         assert!(dp < 0.005 && dr < 5f64.to_radians(), "{dp} m, {dr} rad");
+    }
+
+    #[test]
+    fn placements_tilted_beyond_the_limit_are_dropped_unless_none_is_upright() {
+        let tilted = |deg: f64| {
+            Pose::from_parts(
+                Translation3::new(0.6, 0.0, 0.05),
+                UnitQuaternion::from_axis_angle(&Vector3::x_axis(), deg.to_radians()),
+            )
+        };
+        let params = RegisterParams::default();
+        assert_eq!(params.max_tilt_deg, Some(30.0));
+        let tilts = |kept: Vec<Pose>| -> Vec<f64> {
+            kept.iter()
+                .map(|p| tilt_rad(p, &params.up).to_degrees().round())
+                .collect()
+        };
+        let all = vec![tilted(0.0), tilted(175.0), tilted(25.0), tilted(40.0)];
+        assert_eq!(tilts(upright(all.clone(), &params, |p| *p)), [0.0, 25.0]);
+        // A lying object still registers: nothing upright, nothing dropped.
+        let lying = vec![tilted(90.0), tilted(100.0)];
+        assert_eq!(tilts(upright(lying, &params, |p| *p)), [90.0, 100.0]);
+        // The paper's setting keeps every tilt.
+        let paper = params.clone().paper();
+        assert_eq!(upright(all.clone(), &paper, |p| *p).len(), 4);
     }
 }
