@@ -9,6 +9,9 @@
 //! Success: the object moved under 1 cm and 10 deg relative to the palm; partial:
 //! lifted but slipped or turned more; failure: not lifted, dropped, pushed away, or an
 //! open hand that already intersects the object or the table.
+//! The test runs three times, at the nominal friction and 10 % below and above it
+//! ([`FRICTION_FACTORS`]), and the verdict is the median grade: a grasp that holds
+//! only by chance in one of them is not graded by that one run.
 //!
 //! # Static (`--observer static`, the earlier grading, for comparison)
 //! The hand closes (auto-grasp, [`crate::quality::autograsp`]) around the object held
@@ -54,6 +57,7 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::hash::{Hash, Hasher};
 use std::path::Path;
+use rayon::prelude::*;
 use std::sync::{Arc, Mutex};
 
 /// Epsilon from which a force-closure grasp counts as a success.
@@ -371,6 +375,23 @@ pub struct Observer {
     mode: ObserverMode,
     /// Prepared physics objects (convex decompositions) by mesh.
     prepared: Arc<Mutex<HashMap<u64, Arc<PhysicsObject>>>>,
+    /// The physics verdict's runs, each at the nominal friction times one of these.
+    friction_factors: Vec<f64>,
+}
+
+/// The physics verdict's runs by default: the lift test at the nominal friction,
+/// 10 % below and 10 % above it. The verdict is their median grade. A fingertip
+/// grasp near the limits of its hold is chaotic: one run held while the same
+/// grasp 10 % less or more slippery dropped; one run would grade it by chance.
+pub const FRICTION_FACTORS: [f64; 3] = [1.0, 0.9, 1.1];
+
+/// The index of the run of median grade among `grades` (not empty): the first
+/// such, so the nominal run when it has it; of an even count, the better middle.
+fn median_run(grades: &[Grade]) -> usize {
+    let mut sorted = grades.to_vec();
+    sorted.sort_unstable();
+    let median = sorted[(sorted.len() - 1) / 2];
+    grades.iter().position(|&g| g == median).unwrap_or(0)
 }
 
 impl Observer {
@@ -393,7 +414,17 @@ impl Observer {
             physics: PhysicsOptions::default(),
             mode: ObserverMode::default(),
             prepared: Arc::default(),
+            friction_factors: FRICTION_FACTORS.to_vec(),
         }
+    }
+
+    /// The same observer running the lift test once per factor of the nominal
+    /// friction, the verdict their median grade (`[1.0]`: one run).
+    pub fn with_friction_factors(mut self, factors: &[f64]) -> Observer {
+        if !factors.is_empty() {
+            self.friction_factors = factors.to_vec();
+        }
+        self
     }
 
     /// The same observer grading by `mode`.
@@ -519,21 +550,47 @@ impl Observer {
         );
 
         let body = self.prepared(object, mesh)?;
-        let lift = lift_test(
-            &self.hand,
-            &body,
-            &LiftScene {
-                base_from_object: *base_from_object,
-                base_from_palm: *base_from_palm,
-                preshape,
-                table_height_m: Some(self.table_height_m),
-            },
-            &self.physics,
-        )
-        .map_err(|source| ObserverError::Physics {
-            object: object.to_string(),
-            source,
-        })?;
+        let scene = LiftScene {
+            base_from_object: *base_from_object,
+            base_from_palm: *base_from_palm,
+            preshape,
+            table_height_m: Some(self.table_height_m),
+        };
+        let runs = self
+            .friction_factors
+            .par_iter()
+            .map(|factor| {
+                let options = PhysicsOptions {
+                    friction: self.physics.friction * factor,
+                    ..self.physics
+                };
+                lift_test(&self.hand, &body, &scene, &options)
+            })
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|source| ObserverError::Physics {
+                object: object.to_string(),
+                source,
+            })?;
+        let grades: Vec<Grade> = runs.iter().map(|r| r.grade).collect();
+        let lift = runs[median_run(&grades)].clone();
+        let run_grades = if runs.len() > 1 {
+            format!(
+                "; median of {} runs at friction x{}: {}",
+                runs.len(),
+                self.friction_factors
+                    .iter()
+                    .map(|f| format!("{f}"))
+                    .collect::<Vec<_>>()
+                    .join("/"),
+                grades
+                    .iter()
+                    .map(|g| format!("{g:?}").to_lowercase())
+                    .collect::<Vec<_>>()
+                    .join("/")
+            )
+        } else {
+            String::new()
+        };
         let physics = verdict(GradeRule::Lift(lift.rule), blame);
 
         let chosen = match self.mode {
@@ -549,7 +606,7 @@ impl Observer {
             )
         });
         let note = format!(
-            "{} observer: physics {:?} ({}: rose {:.0} mm, slip {:.1} mm, turn {:.1} deg, touching {});              static {:?} ({}: epsilon {epsilon:.3}, {contacts} parts){reg}",
+            "{} observer: physics {:?} ({}: rose {:.0} mm, slip {:.1} mm, turn {:.1} deg, touching {}{run_grades});              static {:?} ({}: epsilon {epsilon:.3}, {contacts} parts){reg}",
             self.mode,
             physics.grade,
             physics.rule.phrase(),
@@ -802,5 +859,15 @@ mod tests {
             RegistrationError::blame(None).0,
             FailureCause::ShapeDissimilarity
         );
+    }
+
+    #[test]
+    fn the_physics_verdict_is_the_median_run_the_nominal_one_first() {
+        use Grade::{Failure as F, Partial as P, Success as S};
+        assert_eq!(median_run(&[S, F, P]), 2);
+        assert_eq!(median_run(&[S, S, F]), 0);
+        assert_eq!(median_run(&[F, S, S]), 1);
+        assert_eq!(median_run(&[F, F, S]), 0);
+        assert_eq!(median_run(&[P]), 0);
     }
 }
