@@ -202,23 +202,19 @@ impl SafetyCheck {
         let samples = self.samples(trajectory);
         self.check_joints(&samples)?;
         self.check_palm(&samples)?;
-        // A hand resting on the table (fingers closed onto it) may lift off: while the
-        // palm is no lower than at the start, only its touching the table is allowed.
+        // The arm moves the hand as one body: its links against each other are not
+        // checked (fingers closed until they meet lift like any other grasp). A hand
+        // resting on the table (fingers closed onto it) may lift off: while the palm
+        // is no lower than at the start, only its touching the table is allowed.
+        let robot = &self.robot;
         let start = &samples[0].1.position;
-        let resting = self.robot.collision_at(start, hand).is_some()
-            && self
-                .robot
-                .collision_except_hand_on_table(start, hand)
-                .is_none();
-        let start_z = self.robot.arm().palm(start).translation.z;
+        let resting = robot.collision_in_arm_motion(start, hand, false).is_some()
+            && robot.collision_in_arm_motion(start, hand, true).is_none();
+        let start_z = robot.arm().palm(start).translation.z;
         for (t_s, s) in &samples {
             let lifting_off =
-                resting && self.robot.arm().palm(&s.position).translation.z >= start_z - 1e-9;
-            let collision = if lifting_off {
-                self.robot.collision_except_hand_on_table(&s.position, hand)
-            } else {
-                self.robot.collision_at(&s.position, hand)
-            };
+                resting && robot.arm().palm(&s.position).translation.z >= start_z - 1e-9;
+            let collision = robot.collision_in_arm_motion(&s.position, hand, lifting_off);
             if let Some(collision) = collision {
                 return Err(SafetyError::Collision {
                     collision,
@@ -617,7 +613,7 @@ mod tests {
         while z > 0.06 {
             let q = solve(z);
             if robot.collision_at(&q, &open).is_some() {
-                assert_eq!(robot.collision_except_hand_on_table(&q, &open), None);
+                assert_eq!(robot.collision_in_arm_motion(&q, &open, true), None);
                 resting = Some((z, q));
                 break;
             }
@@ -639,5 +635,39 @@ mod tests {
             arm.check_with(&descend, &open),
             Err(SafetyError::Collision { .. })
         ));
+    }
+
+    /// A hand closed until its fingers meet (their boxes overlap) is lifted: the
+    /// arm does not move the fingers against each other. Against the arm or the
+    /// table the same motion is still checked.
+    #[test]
+    fn a_hand_whose_fingers_meet_may_be_lifted() {
+        let arm = safe_arm();
+        let robot = shipped_robot();
+        let limits = arm.limits().joint_limits().unwrap();
+        let solve = |z: f64| {
+            let palm =
+                crate::geometry::pose_from_params(&[0.6, 0.0, z, std::f64::consts::PI, 0.0, 0.0]);
+            robot.ik.solve(&palm, &[OVER_TABLE]).unwrap().joints
+        };
+        let (low, high) = (solve(0.35), solve(0.45));
+        // A closed hand whose own links collide, high above the table.
+        let meeting = (0..=20)
+            .flat_map(|i| (0..=4).map(move |j| (i, j)))
+            .map(|(i, j)| HandPose {
+                spread_rad: std::f64::consts::PI * f64::from(j) / 4.0,
+                flex_rad: [1.2 + 0.06 * f64::from(i); 3],
+            })
+            .find(|h| {
+                matches!(
+                    robot.collision_at(&low, h),
+                    Some(Collision::SelfCollision { ref a, ref b })
+                        if a.starts_with("bh_") && b.starts_with("bh_")
+                )
+            })
+            .expect("test setup: some closed hand's fingers meet");
+        assert_eq!(robot.collision_in_arm_motion(&low, &meeting, false), None);
+        let lift = Trajectory::point_to_point(low, high, &limits).unwrap();
+        arm.check_with(&lift, &meeting).unwrap();
     }
 }

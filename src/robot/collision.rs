@@ -237,6 +237,18 @@ impl CollisionModel {
     /// [`CollisionModel::check`] with the links in `exempt` allowed to touch the table
     /// (they are still checked against the other links).
     pub fn check_except_table(&self, poses: &[Pose], exempt: &[usize]) -> Option<Collision> {
+        self.check_except(poses, exempt, &[])
+    }
+
+    /// [`CollisionModel::check_except_table`] that also skips the pairs of links
+    /// both in `rigid` (links whose relative poses a motion cannot change: the
+    /// hand's, while the arm moves it).
+    pub fn check_except(
+        &self,
+        poses: &[Pose],
+        exempt: &[usize],
+        rigid: &[usize],
+    ) -> Option<Collision> {
         if let Some(&link) = self
             .table_links
             .iter()
@@ -248,6 +260,7 @@ impl CollisionModel {
         }
         self.pairs
             .iter()
+            .filter(|(a, b)| !(rigid.contains(a) && rigid.contains(b)))
             .find(|&&(a, b)| self.links_touch(a, b, poses))
             .map(|&(a, b)| Collision::SelfCollision {
                 a: self.names[a].clone(),

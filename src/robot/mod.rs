@@ -396,15 +396,19 @@ impl Robot {
         self.collision.check(&self.link_poses(arm, hand))
     }
 
-    /// The first collision at this configuration other than the hand touching the
-    /// table (fingers closed onto it, a hand lifting off).
-    pub fn collision_except_hand_on_table(
+    /// The first collision at this configuration that an arm motion could cause:
+    /// the hand's links against each other are not checked (the arm does not move
+    /// the fingers; a hand closed until its fingers meet is no hazard to lift), and
+    /// with `hand_on_table` the hand may touch the table.
+    pub fn collision_in_arm_motion(
         &self,
         arm: &ArmJoints,
         hand: &HandPose,
+        hand_on_table: bool,
     ) -> Option<Collision> {
+        let exempt: &[usize] = if hand_on_table { &self.hand_links } else { &[] };
         self.collision
-            .check_except_table(&self.link_poses(arm, hand), &self.hand_links)
+            .check_except(&self.link_poses(arm, hand), exempt, &self.hand_links)
     }
 
     /// [`UnreachableReason::OutOfReach`] when the wrist centre of the palm pose
