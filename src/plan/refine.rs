@@ -58,6 +58,9 @@ pub struct SimRefineOptions {
     /// Approach to contact before closing (the executor's rule and parameters);
     /// `None` closes at the pose (the paper's setting).
     pub approach: Option<ApproachOptions>,
+    /// Models whose fit weight is below this fraction of the best are left out of
+    /// the mean: their share of it is negligible, their simulation is not.
+    pub min_weight: f64,
     /// Auto-grasp settings.
     #[serde(skip)]
     pub autograsp: AutoGraspOptions,
@@ -69,7 +72,8 @@ pub struct SimRefineOptions {
 impl Default for SimRefineOptions {
     /// A depth scan of 5 cm either way, then 1 cm, 0.2 rad and 0.2 rad first steps,
     /// down to 1/4 of them; 34 evaluations in all; approach to contact with the
-    /// shipped configuration's distances.
+    /// shipped configuration's distances; models of under 1 % of the best fit's
+    /// weight left out.
     fn default() -> Self {
         SimRefineOptions {
             step_m: 0.01,
@@ -79,6 +83,7 @@ impl Default for SimRefineOptions {
             max_evaluations: 34,
             depth_scan_m: 0.05,
             approach: Some(ApproachOptions::default()),
+            min_weight: 0.01,
             autograsp: AutoGraspOptions::default(),
             quality: QualityParams::default(),
         }
@@ -180,7 +185,8 @@ pub fn simulated_epsilon(
 }
 
 /// The fit-weighted mean simulated epsilon of the palm pose `palm` (world) with
-/// the hand's `preshape` (spread and flex) over `models` (in parallel over the
+/// the hand's `preshape` (spread and flex) over `models` of at least
+/// [`SimRefineOptions::min_weight`] of the best weight (in parallel over the
 /// models).
 pub fn mean_epsilon(
     hand: &HandModel,
@@ -189,8 +195,10 @@ pub fn mean_epsilon(
     preshape: &HandPose,
     options: &SimRefineOptions,
 ) -> f64 {
+    let floor = options.min_weight * models.iter().map(|m| m.weight).fold(0.0, f64::max);
     let (sum, weight) = models
         .par_iter()
+        .filter(|m| m.weight >= floor)
         .map(|m| {
             let local = m.base_from_model.inverse() * palm;
             (
@@ -250,6 +258,14 @@ pub fn refine_in_sim(
         super::objective::check_value(what, v, true)?;
     }
     super::objective::check_value("sim refine depth_scan_m", options.depth_scan_m, false)?;
+    super::objective::check_value("sim refine min_weight", options.min_weight, false)?;
+    if options.min_weight > 1.0 {
+        return Err(PlanError::BadValue {
+            what: "sim refine min_weight".into(),
+            value: options.min_weight,
+            problem: "must be at most 1 (a fraction of the best fit's weight)",
+        });
+    }
     let (lo, hi) = hand.spread_limits_rad;
     let start_eps = mean_epsilon(
         hand,
@@ -568,5 +584,52 @@ mod tests {
             assert!((again - r.mean_epsilon).abs() < 1e-12);
             assert!(r.grasp.reachable && r.evaluations <= 10);
         }
+    }
+
+    /// A model under `min_weight` of the best weight is not simulated: the mean
+    /// is the other models' alone; with `min_weight` 0 it counts.
+    #[test]
+    fn models_of_negligible_weight_are_left_out_of_the_mean() {
+        let db = CategoryDb::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug")).unwrap();
+        let robot = crate::robot::shipped_robot();
+        let hand = crate::quality::autograsp::tests::hand_of(&robot);
+        let objects: Vec<GraspObject> = (0..2)
+            .map(|i| {
+                GraspObject::new(&db.meshes[i], Path::new(&db.file.models[i].name))
+                    .unwrap()
+                    .with_table(db.file.table_height_m)
+            })
+            .collect();
+        let model = |i: usize, weight: f64| SimModel {
+            object: &objects[i],
+            base_from_model: Pose::identity(),
+            weight,
+        };
+        let fits: Vec<ModelFit> = (0..1)
+            .map(|i| ModelFit {
+                name: db.file.models[i].name.clone(),
+                base_from_model: Pose::identity(),
+                eps_m2: 1e-4,
+                sigma_m2: 5e-5,
+            })
+            .collect();
+        let grasp = &example_grasps(&db, &fits, "side").unwrap()[0];
+        let palm = crate::geometry::pose_from_params(&grasp.model_from_palm);
+        let preshape = grasp.preshape_rad.at_spread(grasp.spread_rad);
+        let options = SimRefineOptions::default();
+        let eps = |i: usize| simulated_epsilon(&hand, &objects[i], &palm, &preshape, &options);
+        assert!(
+            eps(0) > 0.0,
+            "test setup: the taught grasp holds its own model"
+        );
+        let models = [model(0, 1.0), model(1, 0.5 * options.min_weight)];
+        let mean = |o: &SimRefineOptions| mean_epsilon(&hand, &models, &palm, &preshape, o);
+        assert_eq!(mean(&options), eps(0));
+        let every = SimRefineOptions {
+            min_weight: 0.0,
+            ..options
+        };
+        let w = 0.5 * options.min_weight;
+        assert!((mean(&every) - (eps(0) + w * eps(1)) / (1.0 + w)).abs() < 1e-12);
     }
 }

@@ -121,12 +121,19 @@ pub(super) fn tilt_rad(target_from_model: &Pose, up: &[f64; 3]) -> f64 {
 /// The items whose placement (`target_from_model` of each) is tilted at most
 /// [`RegisterParams::max_tilt_deg`] from upright; all of them when none is, or
 /// without the limit.
-pub(super) fn upright<T>(items: Vec<T>, params: &RegisterParams, placement: impl Fn(&T) -> Pose) -> Vec<T> {
+pub(super) fn upright<T>(
+    items: Vec<T>,
+    params: &RegisterParams,
+    placement: impl Fn(&T) -> Pose,
+) -> Vec<T> {
     let Some(max_deg) = params.max_tilt_deg else {
         return items;
     };
     let max = max_deg.to_radians();
-    if items.iter().any(|i| tilt_rad(&placement(i), &params.up) <= max) {
+    if items
+        .iter()
+        .any(|i| tilt_rad(&placement(i), &params.up) <= max)
+    {
         items
             .into_iter()
             .filter(|i| tilt_rad(&placement(i), &params.up) <= max)

@@ -53,11 +53,11 @@ use crate::sim::physics::{
     lift_test, LiftOutcome, LiftRule, LiftScene, PhysicsError, PhysicsObject, PhysicsOptions,
 };
 use crate::trial::{FailureCause, Grade};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::hash::{Hash, Hasher};
 use std::path::Path;
-use rayon::prelude::*;
 use std::sync::{Arc, Mutex};
 
 /// Epsilon from which a force-closure grasp counts as a success.
