@@ -226,6 +226,7 @@ pub fn plan_trial(
         // Beyond the paper: the Laplace grasp refined in the grasp simulator over
         // every fitted model, approaching to contact as the executor does.
         "laplace-sim" => {
+            let started = std::time::Instant::now();
             let problem = DbProblem {
                 db,
                 fits: &model_fits,
@@ -237,13 +238,19 @@ pub fn plan_trial(
                 seen: seen.as_ref(),
                 table_height_m: Some(config.table.height_m),
             };
-            refine_over_db(
+            let refined = refine_over_db(
                 &problem,
                 &outcome.plan.grasp,
                 &SimRefineOptions::for_cell(config),
             )
-            .map_err(|e| other(e.to_string()))?
-            .grasp
+            .map_err(|e| other(e.to_string()))?;
+            tracing::debug!(
+                ms = started.elapsed().as_secs_f64() * 1e3,
+                evaluations = refined.evaluations,
+                infeasible = refined.infeasible,
+                "laplace-sim refined"
+            );
+            refined.grasp
         }
         _ => outcome.plan.grasp,
     };
@@ -389,8 +396,10 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
             let trial_id = request.trial_id;
             let method = request.method().unwrap_or("?").to_string();
             let started = std::time::Instant::now();
+            let mut planned_ms = f64::NAN;
             let planned = plan_trial(config, &robot, &hand, &mut dbs, &request, &fits).and_then(
                 |mut grasp| {
+                    planned_ms = started.elapsed().as_secs_f64() * 1e3;
                     executable_joints(&robot, &safety, &motions, &mut grasp, &arm_now)
                         .map(|()| grasp)
                 },
@@ -411,6 +420,7 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
             tracing::info!(
                 trial_id,
                 ms = started.elapsed().as_secs_f64() * 1e3,
+                planned_ms,
                 "plan published"
             );
         }
