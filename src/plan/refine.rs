@@ -3,8 +3,7 @@
 //!
 //! From the start grasp (the paper's Laplace optimum), a depth scan and then a
 //! compass search. The depth scan tries the palm moved along its approach axis by
-//! whole steps up to [`SimRefineOptions::depth_scan_m`] either way (simulated at
-//! once, in parallel): where the hand
+//! whole steps up to [`SimRefineOptions::depth_scan_m`] either way: where the hand
 //! closes on an object lower, higher, wider or narrower than the plan assumed is
 //! decided by how deep the approach goes, a move too long for the compass search's
 //! budget. The compass search then runs over the
@@ -187,7 +186,8 @@ pub fn simulated_epsilon(
 
 /// The fit-weighted mean simulated epsilon of the palm pose `palm` (world) with
 /// the hand's `preshape` (spread and flex) over `models` of at least
-/// [`SimRefineOptions::min_weight`] of the best weight (simulated in parallel).
+/// [`SimRefineOptions::min_weight`] of the best weight (in parallel over the
+/// models).
 pub fn mean_epsilon(
     hand: &HandModel,
     models: &[SimModel],
@@ -288,12 +288,9 @@ pub fn refine_in_sim(
     let (mut evaluations, mut infeasible) = (0, 0);
     // The depth scan: every whole step along the approach axis, best first.
     let depth_steps = (options.depth_scan_m / options.step_m).round() as i32;
-    let depths: Vec<i32> = (-depth_steps..=depth_steps)
+    let mut scanned: Vec<([f64; 5], f64)> = (-depth_steps..=depth_steps)
         .filter(|&k| k != 0)
         .take(options.max_evaluations)
-        .collect();
-    let mut scanned: Vec<([f64; 5], f64)> = depths
-        .into_par_iter()
         .map(|k| {
             let y = [0.0, 0.0, f64::from(k) * options.step_m, 0.0, 0.0];
             let (pose, spread) = moved(&start.pose, start.spread_rad, &y);
@@ -329,50 +326,28 @@ pub fn refine_in_sim(
             None => infeasible += 1,
         }
     }
-    // The mean simulated epsilon at `y`.
-    let simulate = |y: &[f64; 5]| {
-        let (pose, spread) = moved(&start.pose, start.spread_rad, y);
-        mean_epsilon(
-            hand,
-            models,
-            &pose,
-            &start.preshape_rad.at_spread(spread),
-            options,
-        )
-    };
-    let within = |y: &[f64; 5]| (lo..=hi).contains(&moved(&start.pose, start.spread_rad, y).1);
     let mut scale = 1.0;
     'search: while scale >= options.min_step_fraction {
         let mut improved = false;
         for d in 0..5 {
-            // Both signs from the current point are simulated at once (when both
-            // are within the limits and the budget). The search itself stays
-            // sequential: once the + step is taken, the - step is the one from the
-            // new point — back where it was, whose mean is known.
-            let step = scale * first[d];
-            let (x_before, eps_before) = (x, best.1);
-            let sides = [1.0, -1.0].map(|sign| {
-                let mut y = x;
-                y[d] += sign * step;
-                y
-            });
-            let ahead = (sides.iter().all(within) && evaluations + 2 <= options.max_evaluations)
-                .then(|| rayon::join(|| simulate(&sides[0]), || simulate(&sides[1])));
-            for (k, sign) in [1.0, -1.0].into_iter().enumerate() {
+            for sign in [1.0, -1.0] {
                 if evaluations >= options.max_evaluations {
                     break 'search;
                 }
                 let mut y = x;
-                y[d] += sign * step;
-                if !within(&y) {
+                y[d] += sign * scale * first[d];
+                let (pose, spread) = moved(&start.pose, start.spread_rad, &y);
+                if !(lo..=hi).contains(&spread) {
                     continue;
                 }
                 evaluations += 1;
-                let eps = match ahead {
-                    Some((plus, minus)) if x == x_before => [plus, minus][k],
-                    _ if y == x_before => eps_before,
-                    _ => simulate(&y),
-                };
+                let eps = mean_epsilon(
+                    hand,
+                    models,
+                    &pose,
+                    &start.preshape_rad.at_spread(spread),
+                    options,
+                );
                 if eps <= best.1 + 1e-12 {
                     continue;
                 }

@@ -1,7 +1,7 @@
 //! The exact ICP stage: the best few candidates of the coarse search refined with
 //! near-exact nearest points (the field's answer improved by a walk over the
 //! model's neighbour graph) in two passes, the second with a tight rejection
-//! distance (in parallel); the cheapest wins.
+//! distance; the cheapest wins.
 
 use super::icp::{icp, IcpSettings};
 use super::model::PreparedModel;
@@ -9,7 +9,6 @@ use super::score::candidate_cost;
 use super::search::{best_distinct, Candidate};
 use super::target::PreparedTarget;
 use super::RegisterParams;
-use rayon::prelude::*;
 
 /// The exact ICP settings of the first (wide) pass.
 fn exact_settings(params: &RegisterParams) -> IcpSettings {
@@ -90,11 +89,10 @@ pub(super) fn refine(
     params: &RegisterParams,
     candidates: Vec<Candidate>,
 ) -> Option<Candidate> {
-    let refined: Vec<Candidate> = best_distinct(candidates, params.refine_best)
-        .par_iter()
+    best_distinct(candidates, params.refine_best)
+        .iter()
         .map(|c| refine_one(target, model, params, c))
-        .collect();
-    refined.into_iter().min_by(|a, b| a.cost.total_cmp(&b.cost))
+        .min_by(|a, b| a.cost.total_cmp(&b.cost))
 }
 
 #[cfg(test)]

@@ -5,8 +5,7 @@
 //! the target. Each seed settles with a few ICP iterations on the field; every
 //! distinct placement is then swept about the table normal through the model's
 //! centroid (`yaw_steps` turns), each turn refined briefly on the field, and the
-//! best few distinct ones refined longer. Each stage's starts run in parallel
-//! (their results in the starts' order, so the search is deterministic).
+//! best few distinct ones refined longer.
 
 use super::icp::{icp, IcpSettings};
 use super::model::PreparedModel;
@@ -17,7 +16,6 @@ use super::target::PreparedTarget;
 use super::RegisterParams;
 use crate::geometry::{rotation_about, Pose};
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
-use rayon::prelude::*;
 
 /// A scored hypothesis `model_from_target`.
 #[derive(Debug, Clone, Copy)]
@@ -209,18 +207,13 @@ impl Coarse<'_> {
         let centre = Point3::from(self.model.centre.coords.cast::<f64>());
         let mut placements: Vec<Pose> = Vec::new();
         let mut most_iterations = 0;
-        let settled: Vec<Candidate> = seeds
-            .par_iter()
-            .map(|seed| {
-                self.run(
-                    &seed.inverse(),
-                    self.params.settle_iterations,
-                    points,
-                    normals,
-                )
-            })
-            .collect();
-        for settled in settled {
+        for seed in seeds {
+            let settled = self.run(
+                &seed.inverse(),
+                self.params.settle_iterations,
+                points,
+                normals,
+            );
             most_iterations = settled.iterations.max(most_iterations);
             let placed = settled.model_from_target.inverse();
             if !placements
@@ -259,7 +252,7 @@ pub(super) fn coarse_search(
     );
     let placements = upright(placements, params, |p| *p);
     let first: Vec<Candidate> = yaw_sweep(&placements, model, params)
-        .par_iter()
+        .iter()
         .map(|s| {
             let mut c = coarse.run(s, params.coarse_iterations, &sweep, &sweep_normals);
             c.iterations += settle_iterations;
@@ -267,7 +260,7 @@ pub(super) fn coarse_search(
         })
         .collect();
     best_distinct(first, params.polish_best)
-        .into_par_iter()
+        .into_iter()
         .map(|c| {
             let mut r = coarse.run(
                 &c.model_from_target,
