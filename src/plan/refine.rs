@@ -536,13 +536,7 @@ mod tests {
                 sigma_m2: 5e-5,
             })
             .collect();
-        let objects: Vec<GraspObject> = (0..3)
-            .map(|i| {
-                GraspObject::new(&db.meshes[i], Path::new(&db.file.models[i].name))
-                    .unwrap()
-                    .with_table(db.file.table_height_m)
-            })
-            .collect();
+        let objects = objects_of(&db, 3);
         let models = SimModel::of_fits(&fits, &objects, &weights);
         for task in ["top", "side"] {
             let grasps = example_grasps(&db, &fits, task).unwrap();
@@ -588,6 +582,18 @@ mod tests {
         }
     }
 
+    /// The grasp objects of the first `n` models of `db`, on its table.
+    fn objects_of(db: &CategoryDb, n: usize) -> Vec<GraspObject> {
+        (0..n)
+            .map(|i| {
+                db.grasp_object(i)
+                    .unwrap()
+                    .clone()
+                    .with_table(db.file.table_height_m)
+            })
+            .collect()
+    }
+
     /// A model under `min_weight` of the best weight is not simulated: the mean
     /// is the other models' alone; with `min_weight` 0 it counts.
     #[test]
@@ -595,13 +601,7 @@ mod tests {
         let db = CategoryDb::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug")).unwrap();
         let robot = crate::robot::shipped_robot();
         let hand = crate::quality::autograsp::tests::hand_of(&robot);
-        let objects: Vec<GraspObject> = (0..2)
-            .map(|i| {
-                GraspObject::new(&db.meshes[i], Path::new(&db.file.models[i].name))
-                    .unwrap()
-                    .with_table(db.file.table_height_m)
-            })
-            .collect();
+        let objects = objects_of(&db, 2);
         let model = |i: usize, weight: f64| SimModel {
             object: &objects[i],
             base_from_model: Pose::identity(),
