@@ -186,7 +186,7 @@ pub fn plan_trial(
     dbs: &mut Databases,
     request: &TrialRequest,
     fits: &Fits,
-) -> Result<PlannedGrasp, PlanFailure> {
+) -> Result<TrialPlan, PlanFailure> {
     let other = |detail: String| PlanFailure {
         cause: FailureCause::Other,
         detail,
@@ -221,6 +221,7 @@ pub fn plan_trial(
     let reach = Some(robot as &dyn Reachability);
     let outcome = plan_with(&model_fits, &grasps, task, &options, reach, seen.as_ref())
         .map_err(|e| other(e.to_string()))?;
+    let mut fallback = None;
     let grasp = match method {
         "best-single" => outcome.best_single.grasp,
         // Beyond the paper: the Laplace grasp refined in the grasp simulator over
@@ -250,6 +251,10 @@ pub fn plan_trial(
                 infeasible = refined.infeasible,
                 "laplace-sim refined"
             );
+            let start = outcome.plan.grasp;
+            if refined.grasp.pose != start.pose || refined.grasp.spread_rad != start.spread_rad {
+                fallback = Some(start);
+            }
             refined.grasp
         }
         _ => outcome.plan.grasp,
@@ -264,7 +269,52 @@ pub fn plan_trial(
             detail: why,
         });
     }
-    Ok(grasp)
+    Ok(TrialPlan { grasp, fallback })
+}
+
+/// A trial's plan: the method's grasp, and what to execute when the executor
+/// refuses it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrialPlan {
+    /// The method's grasp.
+    pub grasp: PlannedGrasp,
+    /// `laplace-sim`'s start, the Laplace optimum, when the refinement moved it:
+    /// the refinement checks each candidate's reachability with the planner's IK,
+    /// not the executor's motions (pre-grasp move, approach, lift), so a refined
+    /// grasp can be refused where its start is not.
+    pub fallback: Option<PlannedGrasp>,
+}
+
+impl TrialPlan {
+    /// The method's grasp with joints whose motions from `current` the executor
+    /// accepts ([`executable_joints`]), else the fallback's; the refusal of the
+    /// method's grasp when neither is accepted.
+    pub fn executable(
+        self,
+        robot: &Robot,
+        check: &SafetyCheck,
+        config: &ExecutorConfig,
+        current: &ArmJoints,
+    ) -> Result<PlannedGrasp, PlanFailure> {
+        let mut grasp = self.grasp;
+        let refusal = match executable_joints(robot, check, config, &mut grasp, current) {
+            Ok(()) => return Ok(grasp),
+            Err(refusal) => refusal,
+        };
+        let Some(mut start) = self.fallback else {
+            return Err(refusal);
+        };
+        match executable_joints(robot, check, config, &mut start, current) {
+            Ok(()) => {
+                tracing::debug!(
+                    "refined grasp refused ({}); executing its start",
+                    refusal.detail
+                );
+                Ok(start)
+            }
+            Err(_) => Err(refusal),
+        }
+    }
 }
 
 /// Picks joint solutions for `grasp` whose motions from the arm at `current` the
@@ -397,13 +447,11 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
             let method = request.method().unwrap_or("?").to_string();
             let started = std::time::Instant::now();
             let mut planned_ms = f64::NAN;
-            let planned = plan_trial(config, &robot, &hand, &mut dbs, &request, &fits).and_then(
-                |mut grasp| {
+            let planned =
+                plan_trial(config, &robot, &hand, &mut dbs, &request, &fits).and_then(|plan| {
                     planned_ms = started.elapsed().as_secs_f64() * 1e3;
-                    executable_joints(&robot, &safety, &motions, &mut grasp, &arm_now)
-                        .map(|()| grasp)
-                },
-            );
+                    plan.executable(&robot, &safety, &motions, &arm_now)
+                });
             let msg = match planned {
                 Ok(grasp) => GraspPlan::new(trial_id, monotonic_now_ns(), &grasp, &method)?,
                 Err(failure) => {
@@ -535,6 +583,39 @@ mod tests {
         assert!(low.joints.is_none());
     }
 
+    /// A refined grasp the executor refuses falls back to its start (the Laplace
+    /// optimum) when the executor accepts that; without a fallback, or when the
+    /// fallback is refused too, the refusal is the refined grasp's.
+    #[test]
+    fn a_refused_refined_grasp_falls_back_to_its_start() {
+        let robot = Arc::new(crate::robot::shipped_robot());
+        let config = CellConfig::load(Path::new(crate::config::DEFAULT_CONFIG_PATH)).unwrap();
+        let check = SafetyCheck::new(Arc::clone(&robot), SafetyLimits::from_cell(&config, &robot));
+        let motions = ExecutorConfig::from_cell(&config);
+        let home = super::super::harness::HOME_JOINTS_RAD;
+        let in_table = top_grasp([0.6, 0.1, 0.01]);
+        let start = top_grasp([0.6, 0.1, 0.2]);
+        let refused_alone =
+            executable_joints(&robot, &check, &motions, &mut in_table.clone(), &home).unwrap_err();
+        let plan = |fallback| TrialPlan {
+            grasp: in_table.clone(),
+            fallback,
+        };
+        let executed = plan(Some(start.clone()))
+            .executable(&robot, &check, &motions, &home)
+            .unwrap();
+        assert_eq!(executed.pose, start.pose);
+        assert!(executed.joints.is_some() && executed.pregrasp_joints.is_some());
+        let alone = plan(None)
+            .executable(&robot, &check, &motions, &home)
+            .unwrap_err();
+        assert_eq!(alone, refused_alone);
+        let both = plan(Some(top_grasp([0.6, -0.1, 0.01])))
+            .executable(&robot, &check, &motions, &home)
+            .unwrap_err();
+        assert_eq!(both, refused_alone);
+    }
+
     #[test]
     fn the_cell_plans_clear_of_the_seen_surface_and_the_papers_protocol_ignores_it() {
         let config = CellConfig::load(Path::new(crate::config::DEFAULT_CONFIG_PATH)).unwrap();
@@ -559,7 +640,8 @@ mod tests {
             &request(Protocol::Cell),
             &fits,
         )
-        .unwrap();
+        .unwrap()
+        .grasp;
         // Seen points filling a 10 cm cube around the free plan's pre-grasp.
         let c = free.pregrasp_pose.translation.vector;
         let mut wall = Vec::new();
@@ -596,17 +678,19 @@ mod tests {
             &request(Protocol::Cell),
             &blocked,
         ) {
-            Ok(clear) => assert_eq!(
+            Ok(TrialPlan { grasp: clear, .. }) => assert_eq!(
                 seen.intrusion(&clear.pose, &clear.preshape_rad.at_spread(clear.spread_rad)),
                 None
             ),
             Err(failure) => assert_eq!(failure.cause, FailureCause::Reachability),
         }
         let paper = Protocol::PaperRobot;
-        let as_published =
-            plan_trial(&config, &robot, &hand, &mut dbs, &request(paper), &blocked).unwrap();
-        let unblocked =
-            plan_trial(&config, &robot, &hand, &mut dbs, &request(paper), &fits).unwrap();
+        let as_published = plan_trial(&config, &robot, &hand, &mut dbs, &request(paper), &blocked)
+            .unwrap()
+            .grasp;
+        let unblocked = plan_trial(&config, &robot, &hand, &mut dbs, &request(paper), &fits)
+            .unwrap()
+            .grasp;
         assert_eq!(
             as_published.pose, unblocked.pose,
             "the paper plans without it"

@@ -3,7 +3,7 @@
 use super::emit;
 use crate::category::CategoryDb;
 use crate::cell::harness::HOME_JOINTS_RAD;
-use crate::cell::plan::executable_joints;
+use crate::cell::plan::TrialPlan;
 use crate::cloud::io::read_cloud;
 use crate::config::CellConfig;
 use crate::execute::{ExecutionRequest, ExecutorConfig, SafetyCheck, SafetyLimits};
@@ -429,15 +429,27 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
         }
     };
     if let (Some(out), Some(robot)) = (&args.out, &robot) {
-        let (grasp, method) = match &refined {
-            Some(r) => (&r.grasp, "laplace-sim"),
-            None => (&outcome.plan.grasp, outcome.plan.kernel.name()),
+        let (plan, method) = match &refined {
+            Some(r) => (
+                TrialPlan {
+                    grasp: r.grasp.clone(),
+                    fallback: Some(outcome.plan.grasp.clone()),
+                },
+                "laplace-sim",
+            ),
+            None => (
+                TrialPlan {
+                    grasp: outcome.plan.grasp.clone(),
+                    fallback: None,
+                },
+                outcome.plan.kernel.name(),
+            ),
         };
         let task = &outcome.plan.task;
         write_plan(
             &cell,
             robot,
-            grasp,
+            plan,
             task,
             method,
             args.from_joints.as_deref(),
@@ -519,13 +531,14 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Writes `grasp` (planned for `task` by `method`) for the executor ([`ExecutionRequest`]) to `out`, with joint
-/// solutions whose moves from `from_joints` (default: home) the executor accepts —
-/// the plan stage's own choice ([`executable_joints`]).
+/// Writes `plan`'s grasp (planned for `task` by `method`) for the executor
+/// ([`ExecutionRequest`]) to `out`, with joint solutions whose moves from
+/// `from_joints` (default: home) the executor accepts — the plan stage's own choice
+/// ([`TrialPlan::executable`]).
 fn write_plan(
     cell: &CellConfig,
     robot: &Arc<Robot>,
-    grasp: &PlannedGrasp,
+    plan: TrialPlan,
     task: &str,
     method: &str,
     from_joints: Option<&str>,
@@ -538,15 +551,9 @@ fn write_plan(
         None => HOME_JOINTS_RAD,
     };
     let check = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(cell, robot));
-    let mut grasp = grasp.clone();
-    executable_joints(
-        robot,
-        &check,
-        &ExecutorConfig::from_cell(cell),
-        &mut grasp,
-        &current,
-    )
-    .map_err(|f| anyhow::anyhow!("--out {}: {}", out.display(), f.detail))?;
+    let grasp = plan
+        .executable(robot, &check, &ExecutorConfig::from_cell(cell), &current)
+        .map_err(|f| anyhow::anyhow!("--out {}: {}", out.display(), f.detail))?;
     let request = ExecutionRequest::from_planned(&grasp, task, method)?;
     write_atomically(out, serde_json::to_string_pretty(&request)?.as_bytes())
         .with_context(|| format!("writing {}", out.display()))?;

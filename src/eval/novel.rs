@@ -9,7 +9,7 @@
 //!    ([`crate::cell::perceive::perceive_trial`], with the calibrated mount);
 //! 3. the plan stage's planning ([`crate::cell::plan::plan_trial`]: the method, the
 //!    table, reachability) and its choice of joints the executor accepts
-//!    ([`crate::cell::plan::executable_joints`]);
+//!    ([`crate::cell::plan::TrialPlan::executable`]);
 //! 4. execution at those joints plus the lab's joint errors;
 //! 5. the simulated observer's grade of the grasp on the object's true mesh with
 //!    the table ([`crate::sim::observer::Observer::grade`]): success / partial /
@@ -21,7 +21,7 @@
 use super::objects::UserObject;
 use crate::category::CategoryDb;
 use crate::cell::perceive::{perceive_trial, register_params};
-use crate::cell::plan::{executable_joints, plan_trial, Databases, PlanFailure};
+use crate::cell::plan::{plan_trial, Databases, PlanFailure};
 use crate::cell::setup::novel_object_in;
 use crate::cloud::segment::SegmentParams;
 use crate::config::CellConfig;
@@ -853,15 +853,13 @@ impl<'a> NovelRun<'a> {
             &request,
             &placed.fits,
         )
-        .and_then(|mut g| {
-            executable_joints(
+        .and_then(|plan| {
+            plan.executable(
                 &cell.robot,
                 &self.safety,
                 &self.motions,
-                &mut g,
                 &crate::cell::harness::HOME_JOINTS_RAD,
             )
-            .map(|()| g)
         }))
     }
 

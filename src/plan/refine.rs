@@ -6,7 +6,10 @@
 //! whole steps up to [`SimRefineOptions::depth_scan_m`] either way: where the hand
 //! closes on an object lower, higher, wider or narrower than the plan assumed is
 //! decided by how deep the approach goes, a move too long for the compass search's
-//! budget. The compass search then runs over the
+//! budget. The scan goes farther than the approach's overtravel: the palm moved
+//! up by less than that still stops on the first contact, and only beyond it does
+//! the hand close in the air above — the fingertip pinch of a squat mug's rim whose
+//! body is too short for the fingers to wrap. The compass search then runs over the
 //! palm's offset along its own x, y, z (m), its roll about the approach axis (rad)
 //! and the hand's spread (rad) maximises the **fit-weighted mean simulated epsilon**
 //! `sum_i phi_i eps_i(X) / sum_i phi_i`, where `eps_i` is the auto-grasp's
@@ -70,8 +73,8 @@ pub struct SimRefineOptions {
 }
 
 impl Default for SimRefineOptions {
-    /// A depth scan of 5 cm either way, then 1 cm, 0.2 rad and 0.2 rad first steps,
-    /// down to 1/4 of them; 34 evaluations in all; approach to contact with the
+    /// A depth scan of 10 cm either way (twice the shipped overtravel), then 1 cm,
+    /// 0.2 rad and 0.2 rad first steps, down to 1/4 of them; 44 evaluations in all; approach to contact with the
     /// shipped configuration's distances; models of under 1 % of the best fit's
     /// weight left out.
     fn default() -> Self {
@@ -80,8 +83,8 @@ impl Default for SimRefineOptions {
             step_roll_rad: 0.2,
             step_spread_rad: 0.2,
             min_step_fraction: 0.25,
-            max_evaluations: 34,
-            depth_scan_m: 0.05,
+            max_evaluations: 44,
+            depth_scan_m: 0.10,
             approach: Some(ApproachOptions::default()),
             min_weight: 0.01,
             autograsp: AutoGraspOptions::default(),
@@ -580,6 +583,66 @@ mod tests {
             assert!((again - r.mean_epsilon).abs() < 1e-12);
             assert!(r.grasp.reachable && r.evaluations <= 10);
         }
+    }
+
+    /// The depth scan reaches far enough above the planned pose for the hand to
+    /// close in the air above a squat mug's rim. A top grasp planned with the palm
+    /// on the rim of a 91 mm barrel mug (where the approach to contact stops) closes
+    /// the fingers past its short body towards the table: epsilon 0 (and the physics
+    /// observer's lift test does not lift it). The refinement raises the palm until
+    /// the fingertips pinch the rim: force closure (and it is held, 2026-11-28).
+    #[test]
+    fn the_depth_scan_lifts_a_top_grasp_off_a_squat_mugs_rim() {
+        use crate::mesh::procedural::held_apart::{generate_held_apart, held_apart_instance};
+        use crate::mesh::procedural::Category;
+        let robot = crate::robot::shipped_robot();
+        let hand = crate::quality::autograsp::tests::hand_of(&robot);
+        let (name, seed) = held_apart_instance(Category::Mug, 1, 9);
+        assert_eq!(name, "barrel-mug-1-9");
+        let (mesh, _, _) = generate_held_apart(Category::Mug, seed);
+        let object = GraspObject::new(&mesh, Path::new(&name))
+            .unwrap()
+            .with_table(Some(0.0));
+        let on_rim = crate::geometry::pose_from_params(&[
+            -0.0050, -0.0081, 0.1515, -3.1222, -0.0043, 0.4977,
+        ]);
+        let start = PlannedGrasp {
+            pose: on_rim,
+            pregrasp_pose: pregrasp_pose(&on_rim, 0.1),
+            spread_rad: 0.5,
+            preshape_rad: crate::robot::PreshapeRad::OPEN,
+            joints: None,
+            pregrasp_joints: None,
+            reachable: true,
+            unreachable: None,
+            objective: 1.0,
+            log_objective: 0.0,
+        };
+        let models = [SimModel {
+            object: &object,
+            base_from_model: Pose::identity(),
+            weight: 1.0,
+        }];
+        let feasibility = Feasibility {
+            reach: None,
+            seen: None,
+            pregrasp_offset_m: 0.1,
+        };
+        let options = SimRefineOptions::default();
+        let r = refine_in_sim(&start, &hand, &models, &feasibility, &|_| 0.0, &options).unwrap();
+        assert_eq!(r.start_mean_epsilon, 0.0, "test setup: the palm on the rim");
+        assert!(r.mean_epsilon > 0.0, "{r:?}");
+        let preshape = r.grasp.preshape_rad.at_spread(r.grasp.spread_rad);
+        let stop = approach_to_contact(
+            &hand,
+            &object,
+            &r.grasp.pose,
+            &preshape,
+            options.approach.as_ref().unwrap(),
+        )
+        .unwrap();
+        let rise_m = stop.object_from_palm.translation.vector.z - on_rim.translation.vector.z;
+        assert!(rise_m > 0.02, "the palm closes {rise_m} m above the rim");
     }
 
     /// The grasp objects of the first `n` models of `db`, on its table.
