@@ -425,3 +425,45 @@ fn novel_runs_the_chain_and_every_trial_is_graded() {
         assert_eq!(n("success") + n("partial") + n("failure"), 1);
     }
 }
+
+/// An object's placements and grades depend on it and the seed only: a run over
+/// fewer instances repeats the larger run's trials of the objects it keeps.
+#[test]
+fn novel_trials_of_an_object_do_not_depend_on_the_other_objects() {
+    let run = |instances: &str| {
+        let (ok, stdout, stderr) = cell(&[
+            "eval",
+            "novel",
+            "--categories",
+            "mug",
+            "--instances",
+            instances,
+            "--placements",
+            "2",
+            "--tasks",
+            "top",
+            "--methods",
+            "best-single",
+            "--json",
+        ]);
+        assert!(ok, "{stderr}");
+        let report: Value = serde_json::from_str(&stdout).unwrap();
+        report["trials"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|t| t["object"] == "squat-mug-1-0")
+            .map(|t| {
+                (
+                    t["placement"].clone(),
+                    t["base_from_object"].clone(),
+                    t["grade"].clone(),
+                    t["palm"].clone(),
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    let alone = run("1");
+    assert_eq!(alone.len(), 2, "{alone:?}");
+    assert_eq!(alone, run("2"));
+}

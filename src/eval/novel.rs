@@ -499,9 +499,21 @@ pub fn task_in_reach(robot: &Robot, db: &CategoryDb, task: &str, base_from_objec
     })
 }
 
-/// Seeds of one object placement: placement, camera noise, registration, joints.
-fn unit_seeds(seed: u64, unit: u64) -> [u64; 4] {
-    [0, 1, 2, 3].map(|k| instance_seed(seed ^ 0x006e_6f76_656c, unit * 4 + k))
+/// Seeds of placement `placement` of the object named `object`: placement, camera
+/// noise, registration, joints. They depend on the object and the placement only,
+/// not on which other objects the run holds, so a run over a subset (`--categories
+/// hammer`, fewer `--instances`) repeats the full run's trials of those objects.
+fn placement_seeds(seed: u64, object: &str, placement: usize) -> [u64; 4] {
+    // FNV-1a: a hash that stays the same across builds and platforms.
+    let name = object.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    });
+    [0, 1, 2, 3].map(|k| {
+        instance_seed(
+            seed ^ 0x006e_6f76_656c ^ instance_seed(name, 0),
+            placement as u64 * 4 + k,
+        )
+    })
 }
 
 /// The cell's placement area ([`crate::cell::harness::PLACEMENT_X_M`], `_Y_M`).
@@ -549,8 +561,8 @@ pub fn run_novel(
     for (o, object) in objects.iter().enumerate() {
         let category = &models[&object.category];
         for placement in 0..options.placements {
-            let unit = (placement * objects.len() + o) as u64;
-            let placed = run.place(object, category, placement, unit)?;
+            let trial_id = (placement * objects.len() + o) as u64;
+            let placed = run.place(object, category, placement, trial_id)?;
             for task in &category.tasks {
                 let in_reach =
                     task_in_reach(&cell.robot, &category.db, task, &placed.base_from_object);
@@ -671,7 +683,7 @@ struct NovelRun<'a> {
 struct Placed<'a> {
     object: &'a NovelObject,
     placement: usize,
-    unit: u64,
+    trial_id: u64,
     base_from_object: Pose,
     lab: LabDraw,
     fits: Fits,
@@ -705,18 +717,18 @@ impl<'a> NovelRun<'a> {
         }
     }
 
-    /// Steps 1 and 2: `object` placed (placement `placement`, seeds of `unit`),
+    /// Steps 1 and 2: `object` placed (placement `placement`, its messages' id `trial_id`),
     /// rendered from the camera's true mount and registered with the calibrated one.
     fn place<'o>(
         &self,
         object: &'o NovelObject,
         category: &CategoryModels,
         placement: usize,
-        unit: u64,
+        trial_id: u64,
     ) -> Result<Placed<'o>, NovelError> {
         let config = self.cell.config;
         let [place_seed, noise_seed, register_seed, joint_seed] =
-            unit_seeds(self.options.seed, unit);
+            placement_seeds(self.options.seed, &object.name, placement);
         let lab = LabDraw {
             calibrated_from_true_camera: self.hand_eye_error,
             joint_error_rad: self.options.lab.draw_joints(joint_seed),
@@ -732,7 +744,7 @@ impl<'a> NovelRun<'a> {
         let cloud = camera.render(&scene, noise_seed).to_cloud();
         // 2. Perception, with the calibrated mount.
         let fits = perceive_trial(
-            unit,
+            trial_id,
             &cloud,
             &self.calibrated,
             &self.segment,
@@ -753,7 +765,7 @@ impl<'a> NovelRun<'a> {
         Ok(Placed {
             object,
             placement,
-            unit,
+            trial_id,
             base_from_object,
             lab,
             fits,
@@ -842,7 +854,7 @@ impl<'a> NovelRun<'a> {
         method: &str,
     ) -> Result<Result<PlannedGrasp, PlanFailure>, NovelError> {
         let (cell, object) = (self.cell, placed.object);
-        let request = TrialRequest::new(placed.unit, 0, object.category.name(), task, method)
+        let request = TrialRequest::new(placed.trial_id, 0, object.category.name(), task, method)
             .map_err(|e| object.fail(e.to_string()))?
             .with_protocol(self.protocol);
         Ok(plan_trial(
