@@ -19,6 +19,7 @@ pub mod eval;
 pub mod execute;
 pub mod fsio;
 pub mod geometry;
+pub mod hash;
 pub mod hw;
 pub mod ipc;
 pub mod logging;

@@ -384,25 +384,30 @@ fn objects_dirs_with_a_bad_manifest_mesh_or_category_are_one_error_naming_the_fi
     assert!(e.contains("--instances"), "{e}");
 }
 
-#[test]
-fn novel_runs_the_chain_and_every_trial_is_graded() {
+/// `cell eval novel --json` on mugs for the `top` task: its report.
+fn novel_json(instances: &str, placements: &str, methods: &str) -> Value {
     let (ok, stdout, stderr) = cell(&[
         "eval",
         "novel",
         "--categories",
         "mug",
         "--instances",
-        "1",
+        instances,
         "--placements",
-        "1",
+        placements,
         "--tasks",
         "top",
         "--methods",
-        "best-single,laplace",
+        methods,
         "--json",
     ]);
     assert!(ok, "{stderr}");
-    let report: Value = serde_json::from_str(&stdout).unwrap();
+    serde_json::from_str(&stdout).unwrap()
+}
+
+#[test]
+fn novel_runs_the_chain_and_every_trial_is_graded() {
+    let report = novel_json("1", "1", "best-single,laplace");
     let trials = report["trials"].as_array().unwrap();
     assert_eq!(
         trials.len(),
@@ -431,24 +436,7 @@ fn novel_runs_the_chain_and_every_trial_is_graded() {
 #[test]
 fn novel_trials_of_an_object_do_not_depend_on_the_other_objects() {
     let run = |instances: &str| {
-        let (ok, stdout, stderr) = cell(&[
-            "eval",
-            "novel",
-            "--categories",
-            "mug",
-            "--instances",
-            instances,
-            "--placements",
-            "2",
-            "--tasks",
-            "top",
-            "--methods",
-            "best-single",
-            "--json",
-        ]);
-        assert!(ok, "{stderr}");
-        let report: Value = serde_json::from_str(&stdout).unwrap();
-        report["trials"]
+        novel_json(instances, "2", "best-single")["trials"]
             .as_array()
             .unwrap()
             .iter()

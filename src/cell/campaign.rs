@@ -123,11 +123,30 @@ pub struct TrialKey {
     pub method: String,
 }
 
-/// The campaign trials in `trials` (of a trial log) that have a grade.
+/// Execution errors (`ExecuteError::kind`) of the link between the PC and the robot
+/// controller, not of the method: the robot dropped to monitor mode (FRI quality
+/// fell: answers came late), or its measurements stopped coming.
+pub const LINK_FAULTS: [&str; 2] = ["arm_dropped_to_monitor", "arm_measurement_late"];
+
+/// Whether `trial` ended on a [`LINK_FAULTS`] error: the grasp was never tried to
+/// the end, so a campaign runs the trial again (a lab resets the robot and repeats
+/// it) and reports the latest (`trial::report`).
+pub fn ended_on_link_fault(trial: &TrialRecord) -> bool {
+    trial
+        .trial
+        .outcome
+        .as_ref()
+        .and_then(|o| o.get("execution_error")?.as_str())
+        .is_some_and(|kind| LINK_FAULTS.contains(&kind))
+}
+
+/// The campaign trials in `trials` (of a trial log) that have a grade and did not
+/// end on a link fault ([`ended_on_link_fault`]): the trials a resumed campaign
+/// does not run again.
 pub fn graded_trials(trials: &[TrialRecord]) -> HashSet<TrialKey> {
     trials
         .iter()
-        .filter(|t| t.grading.is_some())
+        .filter(|t| t.grading.is_some() && !ended_on_link_fault(t))
         .filter_map(|t| {
             Some(TrialKey {
                 campaign_id: t.trial.campaign_id.clone()?,
@@ -451,6 +470,38 @@ mod tests {
             .collect();
         let rest = spec.plan(&config(), &graded);
         assert_eq!(rest, all[5..]);
+    }
+
+    #[test]
+    fn a_trial_that_ended_on_a_link_fault_is_run_again() {
+        use crate::trial::report::tests::record;
+        let failed = |id, placement, kind: &str| {
+            let mut t = record(
+                id,
+                "laplace",
+                "m1",
+                placement,
+                Some(("failure", Some("execution"))),
+            );
+            t.trial.outcome = Some(serde_json::json!({ "execution_error": kind }));
+            t
+        };
+        let dropped = failed(1, 0, "arm_dropped_to_monitor");
+        let late = failed(2, 1, "arm_measurement_late");
+        let refused = failed(3, 2, "unsafe_motion");
+        assert!(ended_on_link_fault(&dropped) && ended_on_link_fault(&late));
+        assert!(!ended_on_link_fault(&refused));
+        let key = |placement| TrialKey {
+            campaign_id: "c1".into(),
+            object: "m1".into(),
+            placement,
+            method: "laplace".into(),
+        };
+        let mut trials = vec![dropped, late, refused];
+        assert_eq!(graded_trials(&trials), HashSet::from([key(2)]));
+        // The repeat of placement 0 is graded: that trial is done.
+        trials.push(record(4, "laplace", "m1", 0, Some(("success", None))));
+        assert_eq!(graded_trials(&trials), HashSet::from([key(0), key(2)]));
     }
 
     #[test]

@@ -1,7 +1,9 @@
 //! `cell demo`, `cell run`, `cell trial` and `cell campaign`: the cell as processes.
 
 use super::emit;
-use crate::cell::campaign::{graded_trials, CampaignSpec, NovelObject, PlannedTrial, TaskReport};
+use crate::cell::campaign::{
+    graded_trials, CampaignSpec, NovelObject, PlannedTrial, TaskReport, LINK_FAULTS,
+};
 use crate::cell::harness::{novel_object, placement_rng, random_placement, Cell, HarnessOptions};
 use crate::cell::plan::{Databases, METHODS};
 use crate::cell::setup::{ObjectSource, TrialSetup};
@@ -200,6 +202,11 @@ pub struct CampaignArgs {
     /// Who grades: the physics lift test or static epsilon (both verdicts are logged).
     #[arg(long, value_enum, default_value_t = crate::cell::log::ObserverKind::Physics)]
     pub observer: crate::cell::log::ObserverKind,
+    /// Rounds of repeats of trials that ended on a link fault (the robot dropped to
+    /// monitor mode, or its measurements stopped): a lab resets the robot and runs
+    /// such a trial again; the latest counts in the report.
+    #[arg(long, default_value_t = 2)]
+    pub link_fault_repeats: u32,
     /// The paper's robot protocol (issue 19) for perception and planning: one-sided
     /// fit score with poor fits kept, kernel scale s = b = 700, the paper's weights,
     /// and no reachability repair for any method (unreachable grasps fail as
@@ -619,14 +626,29 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
     options.log_path = args.log.clone();
     options.protocol = spec.protocol();
     crate::cell::install_stop_handler();
-    let lines = {
+    let (lines, repeated) = {
         let mut cell = Cell::start(options, (*domain).clone()).context("starting the cell")?;
-        let lines = run_campaign_trials(&mut cell, &args, category, &plan)?;
+        let mut lines = run_campaign_trials(&mut cell, &args, category, &plan)?;
+        let mut repeated = 0;
+        for _ in 0..args.link_fault_repeats {
+            let graded = graded_trials(&TrialLog::open_existing(&args.log)?.trials()?);
+            let again = spec.plan(&config, &graded);
+            if again.is_empty() || stop_requested() {
+                break;
+            }
+            eprintln!(
+                "running {} trial(s) again: they ended on a link fault ({}) or lost their result",
+                again.len(),
+                LINK_FAULTS.join(", ")
+            );
+            repeated += again.len();
+            lines.extend(run_campaign_trials(&mut cell, &args, category, &again)?);
+        }
         let leftover = cell.stop()?;
         if !leftover.is_empty() {
             tracing::warn!(files = leftover.len(), "shared memory left behind");
         }
-        lines
+        (lines, repeated)
     };
     domain.remove()?;
     let summary = Summary::of(&lines);
@@ -640,6 +662,8 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
         lab: LabErrors,
         run: Vec<TrialLine>,
         summary: Summary,
+        /// Trials of `run` that repeat an earlier one (`--link-fault-repeats`).
+        repeated: usize,
         by_task: Vec<TaskRow>,
         tasks: Vec<TaskReport>,
     }
@@ -647,13 +671,20 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
         log: args.log.clone(),
         observer: args.observer.mode().unwrap_or_default(),
         lab: spec.lab,
-        by_task: TaskRow::of(&lines, &spec.tasks, &spec.methods),
+        by_task: TaskRow::of(&latest_lines(&lines), &spec.tasks, &spec.methods),
         run: lines,
         summary,
+        repeated,
         tasks: reports,
     };
     emit(args.json, &out, |o| {
         let mut text = format!("{}{}\n", o.summary.text(), o.lab.text());
+        if o.repeated > 0 {
+            text += &format!(
+                "{} trial(s) run again after a link fault; the table counts the latest\n",
+                o.repeated
+            );
+        }
         text += &TaskRow::table(&o.by_task);
         for t in &o.tasks {
             text += &format!(
@@ -668,6 +699,20 @@ pub fn campaign(config_path: &Path, args: CampaignArgs) -> anyhow::Result<ExitCo
         text
     })?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// The latest line of each trial (task, object, placement, method) in `lines`, in
+/// order: a repeat replaces the trial it repeats.
+fn latest_lines(lines: &[TrialLine]) -> Vec<TrialLine> {
+    let mut seen = HashSet::new();
+    let mut latest: Vec<TrialLine> = lines
+        .iter()
+        .rev()
+        .filter(|l| seen.insert((&l.task, &l.object, l.placement, &l.method)))
+        .cloned()
+        .collect();
+    latest.reverse();
+    latest
 }
 
 /// Grades of one task and method over the trials run now.

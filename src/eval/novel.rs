@@ -504,10 +504,7 @@ pub fn task_in_reach(robot: &Robot, db: &CategoryDb, task: &str, base_from_objec
 /// not on which other objects the run holds, so a run over a subset (`--categories
 /// hammer`, fewer `--instances`) repeats the full run's trials of those objects.
 fn placement_seeds(seed: u64, object: &str, placement: usize) -> [u64; 4] {
-    // FNV-1a: a hash that stays the same across builds and platforms.
-    let name = object.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
-    });
+    let name = crate::hash::fnv1a(object.as_bytes());
     [0, 1, 2, 3].map(|k| {
         instance_seed(
             seed ^ 0x006e_6f76_656c ^ instance_seed(name, 0),

@@ -125,12 +125,9 @@ fn ms(since: Instant) -> f64 {
     since.elapsed().as_secs_f64() * 1e3
 }
 
-/// A model's random seed: the run's seed mixed with the model's name (FNV-1a).
+/// A model's random seed: the run's seed mixed with the model's name.
 fn model_seed(seed: u64, name: &str) -> u64 {
-    let hash = name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
-        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
-    });
-    crate::mesh::procedural::instance_seed(seed, hash)
+    crate::mesh::procedural::instance_seed(seed, crate::hash::fnv1a(name.as_bytes()))
 }
 
 /// The scale check: a model whose size differs from the target's by more than

@@ -392,13 +392,6 @@ enum Cell {
     File(Arc<std::fs::File>),
 }
 
-/// FNV-1a over `bytes`.
-fn checksum(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-    })
-}
-
 impl Cell {
     fn file(path: &Path) -> Result<Cell, WorldError> {
         let file = std::fs::OpenOptions::new()
@@ -421,7 +414,7 @@ impl Cell {
                 for v in values {
                     bytes.extend_from_slice(&v.to_le_bytes());
                 }
-                let sum = checksum(&bytes);
+                let sum = crate::hash::fnv1a(&bytes);
                 bytes.extend_from_slice(&sum.to_le_bytes());
                 if let Err(e) = f.write_at(&bytes, 0) {
                     tracing::warn!("shared simulator state: write failed: {e}");
@@ -450,7 +443,7 @@ impl Cell {
                     if len != n as u64 {
                         return None;
                     }
-                    if checksum(body).to_le_bytes() == sum {
+                    if crate::hash::fnv1a(body).to_le_bytes() == sum {
                         return Some(
                             body[8..]
                                 .chunks_exact(8)

@@ -8,7 +8,11 @@
 //!   given, is kept in the log but is not a failure).
 //! - The sign test pairs trials by (campaign, object, placement). If one method has
 //!   several graded trials with the same key (a repeated trial), the latest (highest
-//!   id) is used and the others are counted in `superseded`.
+//!   id) is used and the others are counted in `superseded`. In a campaign the
+//!   latest is also the one counted in the rates and causes (a campaign repeats a
+//!   trial the link to the robot broke off, `cell::campaign::ended_on_link_fault`);
+//!   outside campaigns every graded trial counts (the same object and placement
+//!   index may be tried many times).
 
 use super::grade::{FailureCause, Grade};
 use super::log::{PairingKey, TrialRecord};
@@ -109,13 +113,16 @@ pub struct Report {
     pub task: Option<String>,
     /// Trials considered.
     pub trials: u64,
-    /// Of those, graded.
+    /// Of those, graded and counted.
     pub graded: u64,
     /// Of those, not graded yet.
     pub ungraded: u64,
     /// Graded trials left out of the sign tests because a later trial of the same
-    /// method had the same pairing key.
+    /// method had the same pairing key (and, for campaign trials, out of the rates
+    /// and causes too).
     pub superseded: u64,
+    /// Of `superseded`, campaign trials: not in `graded`.
+    pub superseded_in_campaigns: u64,
     /// Per method, in name order.
     pub methods: Vec<MethodSummary>,
     /// Failures by cause.
@@ -145,6 +152,7 @@ impl Report {
         let mut cause_counts = vec![vec![0_u64; methods.len()]; FailureCause::ALL.len()];
         let mut scores: Vec<BTreeMap<PairingKey, (i64, i8)>> = Vec::new();
         let mut superseded = 0;
+        let mut superseded_in_campaigns = 0;
         for (col, (method, list)) in by_method.iter().enumerate() {
             let mut s = MethodSummary {
                 method: method.to_string(),
@@ -157,9 +165,28 @@ impl Report {
                 partial_pct: None,
                 failure_pct: None,
             };
+            // The latest graded trial of each campaign key of this method.
+            let mut latest: BTreeMap<PairingKey, i64> = BTreeMap::new();
+            for t in list.iter().filter(|t| t.grading.is_some()) {
+                if t.trial.campaign_id.is_some() {
+                    let id = latest.entry(t.pairing_key()).or_insert(t.id);
+                    *id = (*id).max(t.id);
+                }
+            }
             let mut keyed: BTreeMap<PairingKey, (i64, i8)> = BTreeMap::new();
             for t in list {
                 let Some(g) = &t.grading else { continue };
+                let entry = (t.id, g.grade.score());
+                if let Some(old) = keyed.insert(t.pairing_key(), entry) {
+                    superseded += 1;
+                    if old.0 > t.id {
+                        keyed.insert(t.pairing_key(), old);
+                    }
+                }
+                if latest.get(&t.pairing_key()).is_some_and(|&id| id != t.id) {
+                    superseded_in_campaigns += 1;
+                    continue;
+                }
                 s.graded += 1;
                 match g.grade {
                     Grade::Success => s.success += 1,
@@ -170,13 +197,6 @@ impl Report {
                         let cause = g.cause.unwrap_or(FailureCause::Other);
                         let row = FailureCause::ALL.iter().position(|&c| c == cause);
                         cause_counts[row.unwrap_or(FailureCause::ALL.len() - 1)][col] += 1;
-                    }
-                }
-                let entry = (t.id, g.grade.score());
-                if let Some(old) = keyed.insert(t.pairing_key(), entry) {
-                    superseded += 1;
-                    if old.0 > t.id {
-                        keyed.insert(t.pairing_key(), old);
                     }
                 }
             }
@@ -233,8 +253,9 @@ impl Report {
             task: scope.task.map(str::to_string),
             trials: selected.len() as u64,
             graded,
-            ungraded: selected.len() as u64 - graded,
+            ungraded: selected.iter().filter(|t| t.grading.is_none()).count() as u64,
             superseded,
+            superseded_in_campaigns,
             methods: summaries,
             failure_causes: CauseTable {
                 methods,
@@ -346,8 +367,16 @@ impl Report {
         if self.superseded > 0 {
             let _ = writeln!(
                 out,
-                "\n{} graded trial(s) repeated a method's (campaign, object, placement); the latest was paired",
-                self.superseded
+                "\n{} graded trial(s) repeated a method's (campaign, object, placement); the latest was paired{}",
+                self.superseded,
+                if self.superseded_in_campaigns > 0 {
+                    format!(
+                        " and, for the {} in campaigns, counted alone",
+                        self.superseded_in_campaigns
+                    )
+                } else {
+                    String::new()
+                }
             );
         }
         out
@@ -355,14 +384,15 @@ impl Report {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::geometry::PoseJson;
     use crate::trial::grade::Grading;
     use crate::trial::log::{NewTrial, ObjectRef, Placement};
     use crate::trial::time::UtcTimestamp;
 
-    fn record(
+    /// A campaign trial (`c1`) of a mug for `pour`, with `grade` (grade, cause).
+    pub(crate) fn record(
         id: i64,
         method: &str,
         object: &str,
@@ -423,7 +453,8 @@ mod tests {
             ),
         ];
         let r = Report::from_trials(&trials, Scope::default());
-        assert_eq!((r.trials, r.graded, r.ungraded, r.superseded), (8, 7, 1, 1));
+        assert_eq!((r.trials, r.graded, r.ungraded, r.superseded), (8, 6, 1, 1));
+        assert_eq!(r.superseded_in_campaigns, 1);
         let a = &r.methods[0];
         assert_eq!(
             (a.trials, a.graded, a.success, a.partial, a.failure),
@@ -431,15 +462,19 @@ mod tests {
         );
         assert!((a.success_pct.unwrap() - 100.0 / 3.0).abs() < 1e-12);
         let b = &r.methods[1];
-        assert_eq!((b.graded, b.success, b.partial, b.failure), (4, 1, 1, 2));
-        // Causes: a has 1 reachability of 3; b has 1 registration + 1 shape of 4.
+        // b's repeat of m2/0 replaces its first grade in the counts as well.
+        assert_eq!(
+            (b.trials, b.graded, b.success, b.partial, b.failure),
+            (4, 3, 0, 1, 2)
+        );
+        // Causes: a has 1 reachability of 3; b has 1 registration + 1 shape of 3.
         let t = &r.failure_causes;
         assert_eq!(t.rows[0].counts, vec![1, 0]);
         assert_eq!(t.rows[1].counts, vec![0, 1]);
         assert_eq!(t.rows[2].counts, vec![0, 1]);
-        assert_eq!(t.rows[1].percent[1], Some(25.0));
+        assert!((t.rows[1].percent[1].unwrap() - 100.0 / 3.0).abs() < 1e-12);
         assert_eq!(t.total.counts, vec![1, 2]);
-        assert_eq!(t.total.percent[1], Some(50.0));
+        assert!((t.total.percent[1].unwrap() - 200.0 / 3.0).abs() < 1e-12);
         // Pairs: m1/0 a+1 vs b-1 win; m1/1 tie; m2/0 a-1 vs b-1 (latest) tie.
         let s = &r.sign_tests[0].test;
         assert_eq!((s.test.wins, s.test.losses, s.test.ties), (1, 0, 2));

@@ -74,10 +74,7 @@ pub fn cpu_ms(per_thread: bool) -> f64 {
 /// The 64-bit FNV-1a hash of `bytes` as 16 hex digits: a bench's fingerprint of
 /// what it computed, equal before and after a change that must not change it.
 pub fn digest(bytes: &[u8]) -> String {
-    let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-    });
-    format!("{hash:016x}")
+    format!("{:016x}", crate::hash::fnv1a(bytes))
 }
 
 pub fn run(config: &Path, which: BenchCommand) -> anyhow::Result<ExitCode> {
