@@ -165,14 +165,7 @@ impl Report {
                 partial_pct: None,
                 failure_pct: None,
             };
-            // The latest graded trial of each campaign key of this method.
-            let mut latest: BTreeMap<PairingKey, i64> = BTreeMap::new();
-            for t in list.iter().filter(|t| t.grading.is_some()) {
-                if t.trial.campaign_id.is_some() {
-                    let id = latest.entry(t.pairing_key()).or_insert(t.id);
-                    *id = (*id).max(t.id);
-                }
-            }
+            // The latest graded trial (id, score) of each pairing key of this method.
             let mut keyed: BTreeMap<PairingKey, (i64, i8)> = BTreeMap::new();
             for t in list {
                 let Some(g) = &t.grading else { continue };
@@ -183,7 +176,11 @@ impl Report {
                         keyed.insert(t.pairing_key(), old);
                     }
                 }
-                if latest.get(&t.pairing_key()).is_some_and(|&id| id != t.id) {
+            }
+            for t in list {
+                let Some(g) = &t.grading else { continue };
+                let latest = keyed.get(&t.pairing_key()).map(|&(id, _)| id);
+                if t.trial.campaign_id.is_some() && latest != Some(t.id) {
                     superseded_in_campaigns += 1;
                     continue;
                 }
