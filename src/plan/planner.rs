@@ -332,6 +332,7 @@ struct Feasible {
 /// Checks grasp and pre-grasp: the full check (`quick = false`; `seeds` first) or the
 /// quick one from the nearby configurations `seeds`. The pre-grasp is tried from the
 /// grasp's solution first, then from `pre_seeds`.
+#[derive(Clone, Copy)]
 struct Checker<'a> {
     reach: &'a dyn Reachability,
     /// The seen surface the open hand must not enter (with its approach).
@@ -341,6 +342,29 @@ struct Checker<'a> {
 }
 
 impl Checker<'_> {
+    /// `work` on each of `items` with a checker of its own (in parallel when
+    /// `parallel`), results in the items' order; their checks are added to this one's.
+    fn map_forked<T: Sync, R: Send>(
+        &mut self,
+        items: &[T],
+        parallel: bool,
+        work: impl Fn(&mut Checker, &T) -> R + Sync,
+    ) -> Vec<R> {
+        let fork = Checker { checks: 0, ..*self };
+        let one = |item: &T| {
+            let mut own = fork;
+            let r = work(&mut own, item);
+            (r, own.checks)
+        };
+        let done: Vec<(R, usize)> = if parallel && items.len() > 1 {
+            items.par_iter().map(one).collect()
+        } else {
+            items.iter().map(one).collect()
+        };
+        self.checks += done.iter().map(|d| d.1).sum::<usize>();
+        done.into_iter().map(|d| d.0).collect()
+    }
+
     fn check(
         &mut self,
         pose: &Pose,
@@ -819,25 +843,46 @@ fn best_reachable(
     groups.push(trail);
     let mut checked: Vec<Pose> = vec![pose];
     let mut feasible: Vec<(Point, Feasible)> = Vec::new();
+    // Checked in batches of one point per thread (in parallel with `parallel`) and
+    // taken in order, so the points found do not depend on the threads; a batch may
+    // check one point the serial search would not have needed.
+    let batch_size = if options.parallel {
+        rayon::current_num_threads().max(1)
+    } else {
+        1
+    };
     let mut find = |points: Vec<Point>, budget: usize, feasible: &mut Vec<(Point, Feasible)>| {
         let mut budget = budget;
-        for point in points {
-            if feasible.len() >= options.constrained_starts || budget == 0 {
+        let mut points = points.into_iter();
+        while feasible.len() < options.constrained_starts && budget > 0 {
+            let mut batch = Vec::new();
+            for point in points.by_ref() {
+                // Skip near-duplicates of points already checked.
+                if checked.iter().any(|c| {
+                    let (dp, dr) = pose_error(c, &point.pose);
+                    dp < 2e-3 && dr < 2e-3
+                }) {
+                    continue;
+                }
+                checked.push(point.pose);
+                batch.push(point);
+                if batch.len() >= batch_size.min(budget) {
+                    break;
+                }
+            }
+            if batch.is_empty() {
                 return;
             }
-            // Skip near-duplicates of points already checked.
-            if checked.iter().any(|c| {
-                let (dp, dr) = pose_error(c, &point.pose);
-                dp < 2e-3 && dr < 2e-3
-            }) {
-                continue;
-            }
-            checked.push(point.pose);
-            budget -= 1;
-            if let Ok(f) =
-                checker.check(&point.pose, &problem.hand_at(&point.pose), &[], &[], false)
-            {
-                feasible.push((point, f));
+            budget -= batch.len();
+            let checks = checker.map_forked(&batch, options.parallel, |c, point| {
+                c.check(&point.pose, &problem.hand_at(&point.pose), &[], &[], false)
+            });
+            for (point, result) in batch.into_iter().zip(checks) {
+                if let Ok(f) = result {
+                    if feasible.len() < options.constrained_starts {
+                        feasible.push((point, f));
+                    }
+                }
             }
         }
     };
@@ -886,19 +931,25 @@ fn best_reachable(
     if lo > 0.0 {
         feasible.push((problem.point(at(lo)), lo_f));
     }
+    // From another side the grasp is taken as found: a constrained run would slide
+    // it back along the boundary toward the unreachable side, at ten times the cost.
+    // The runs are independent (in parallel with `parallel`).
+    let found: Vec<(Point, Feasible)> = if other_side {
+        feasible
+    } else {
+        let runs = checker.map_forked(&feasible, options.parallel, |c, &(point, f)| {
+            problem.constrained_run(c, point, f)
+        });
+        *constrained_runs += runs.len();
+        runs.into_iter()
+            .map(|(found, found_f, used)| {
+                *evaluations += used;
+                (found, found_f)
+            })
+            .collect()
+    };
     let mut best: Option<(Point, Feasible)> = None;
-    for &(point, f) in &feasible {
-        // From another side the grasp is taken as found: a constrained run would
-        // slide it back along the boundary toward the unreachable side, at ten times
-        // the cost.
-        let (found, found_f) = if other_side {
-            (point, f)
-        } else {
-            let (found, found_f, used) = problem.constrained_run(checker, point, f);
-            *constrained_runs += 1;
-            *evaluations += used;
-            (found, found_f)
-        };
+    for (found, found_f) in found {
         if best.as_ref().is_none_or(|b| found.g < b.0.g) {
             best = Some((found, found_f));
         }
@@ -1469,7 +1520,14 @@ mod tests {
             let mut options = PlanOptions::with_kernel(Kernel::GAUSSIAN_R_DEFAULT);
             let a = plan(&fits, &grasps, "top", &options, reach).unwrap();
             options.parallel = false;
-            let b = plan(&fits, &grasps, "top", &options, reach).unwrap();
+            let mut b = plan(&fits, &grasps, "top", &options, reach).unwrap();
+            // The parallel search checks its points in batches: a batch may check
+            // points the serial one stopped before (at most one per thread beyond
+            // each of the two searches' last).
+            let threads = rayon::current_num_threads();
+            assert!(a.plan.reach_checks >= b.plan.reach_checks);
+            assert!(a.plan.reach_checks <= b.plan.reach_checks + 4 * threads);
+            b.plan.reach_checks = a.plan.reach_checks;
             assert_eq!(a, b);
         }
     }

@@ -304,12 +304,15 @@ pub fn refine_in_sim(
         options.step_spread_rad,
     ];
     let (mut evaluations, mut infeasible) = (0, 0);
-    // The depth scan: every whole step along the approach axis, best first.
+    // The depth scan: every whole step along the approach axis, best first (the
+    // steps in parallel, as the models are: a mean does not depend on the threads).
     let steps = |m: f64| (m / options.step_m).round() as i32;
-    let depth_steps = -steps(options.depth_scan_out_m)..=steps(options.depth_scan_in_m);
-    let mut scanned: Vec<([f64; 5], f64)> = depth_steps
+    let depth_steps: Vec<i32> = (-steps(options.depth_scan_out_m)..=steps(options.depth_scan_in_m))
         .filter(|&k| k != 0)
         .take(options.max_evaluations)
+        .collect();
+    let mut scanned: Vec<([f64; 5], f64)> = depth_steps
+        .into_par_iter()
         .map(|k| {
             let y = [0.0, 0.0, f64::from(k) * options.step_m, 0.0, 0.0];
             let (pose, spread) = moved(&start.pose, start.spread_rad, &y);

@@ -9,7 +9,7 @@ use crate::execute::{ExecutorConfig, SafetyCheck, SafetyLimits};
 use crate::plan::category::example_grasps;
 use crate::plan::refine::{refine_over_db, DbProblem, SimRefineOptions};
 use crate::plan::synthetic::{synthetic_problem, SyntheticSpec};
-use crate::plan::{plan, Kernel, PlanOptions, PlanOutcome, Reachability};
+use crate::plan::{plan, Kernel, PlanOptions, Reachability};
 use crate::robot::hand::HandModel;
 use crate::robot::Robot;
 use crate::stats::{median, percentile};
@@ -111,6 +111,13 @@ struct SimBench {
     laplace_sim_median_ms: f64,
     /// The refinement alone, ms.
     refine_median_ms: f64,
+    /// laplace-sim on one thread (the baseline of the parallel search), ms.
+    laplace_sim_one_thread_median_ms: f64,
+    /// `laplace_sim_one_thread_median_ms / laplace_sim_median_ms`.
+    laplace_sim_speedup: f64,
+    /// The plans and refinements on one thread equal those in parallel (but for
+    /// their count of reachability checks).
+    same_on_one_thread: bool,
     /// Process CPU time of laplace-sim, all threads (ms): its cost whatever else
     /// the machine is doing.
     laplace_sim_median_cpu_ms: f64,
@@ -156,6 +163,8 @@ fn sim_bench(
     let (mut plain, mut total, mut refine_ms) = (Vec::new(), Vec::new(), Vec::new());
     let (mut cpu_ms, mut executable_ms, mut planned) = (Vec::new(), Vec::new(), Vec::new());
     let (mut before, mut after, mut evals) = (Vec::new(), Vec::new(), Vec::new());
+    let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
+    let (mut one_thread_ms, mut same_on_one_thread) = (Vec::new(), true);
     for r in 0..repeats {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + r as u64);
         let fits: Vec<crate::plan::ModelFit> = db
@@ -177,33 +186,43 @@ fn sim_bench(
             })
             .collect();
         let grasps = example_grasps(&db, &fits, task)?;
-        let cpu = super::cpu_ms(false);
-        let (t, out) = time_ms(|| {
-            plan(
-                &fits,
-                &grasps,
+        // Laplace, then its refinement: (Laplace ms, refinement ms, plan, refined).
+        let laplace_sim = || -> anyhow::Result<_> {
+            let (t, out) = time_ms(|| {
+                plan(
+                    &fits,
+                    &grasps,
+                    task,
+                    &options,
+                    Some(robot as &dyn Reachability),
+                )
+            });
+            let out = out?;
+            let problem = DbProblem {
+                db: &db,
+                fits: &fits,
+                grasps: &grasps,
                 task,
-                &options,
-                Some(robot as &dyn Reachability),
-            )
-            .expect("the database's problems are valid")
-        });
-        plain.push(t);
-        let start = Instant::now();
-        let problem = DbProblem {
-            db: &db,
-            fits: &fits,
-            grasps: &grasps,
-            task,
-            options: &options,
-            hand: &hand,
-            reach: Some(robot as &dyn Reachability),
-            seen: None,
-            table_height_m: Some(cell.table.height_m),
+                options: &options,
+                hand: &hand,
+                reach: Some(robot as &dyn Reachability),
+                seen: None,
+                table_height_m: Some(cell.table.height_m),
+            };
+            let (rt, refined) = time_ms(|| {
+                refine_over_db(&problem, &out.plan.grasp, &SimRefineOptions::for_cell(cell))
+            });
+            Ok((t, rt, out, refined?))
         };
-        let refined = refine_over_db(&problem, &out.plan.grasp, &SimRefineOptions::for_cell(cell))?;
-        let rt = start.elapsed().as_secs_f64() * 1e3;
+        let (t1, rt1, mut out1, refined1) = one_thread.install(laplace_sim)?;
+        one_thread_ms.push(t1 + rt1);
+        let cpu = super::cpu_ms(false);
+        let (t, rt, out, refined) = laplace_sim()?;
         cpu_ms.push(super::cpu_ms(false) - cpu);
+        // The parallel search checks reachability in batches (a few more checks).
+        out1.plan.reach_checks = out.plan.reach_checks;
+        same_on_one_thread &= out1 == out && refined1 == refined;
+        plain.push(t);
         refine_ms.push(rt);
         total.push(t + rt);
         let mut grasp = refined.grasp.clone();
@@ -224,6 +243,9 @@ fn sim_bench(
         laplace_median_ms: median(&mut plain),
         laplace_sim_median_ms: median(&mut total),
         refine_median_ms: median(&mut refine_ms),
+        laplace_sim_one_thread_median_ms: median(&mut one_thread_ms),
+        laplace_sim_speedup: median(&mut one_thread_ms) / median(&mut total),
+        same_on_one_thread,
         laplace_sim_median_cpu_ms: median(&mut cpu_ms),
         executable_median_ms: median(&mut executable_ms),
         median_start_mean_epsilon: median(&mut before),
@@ -239,7 +261,7 @@ fn thread_cpu_ms() -> f64 {
     crate::sys::cpu_time_ms(true)
 }
 
-fn time_ms(f: impl FnOnce() -> PlanOutcome) -> (f64, PlanOutcome) {
+fn time_ms<T>(f: impl FnOnce() -> T) -> (f64, T) {
     let start = Instant::now();
     let out = f();
     (start.elapsed().as_secs_f64() * 1e3, out)
