@@ -291,11 +291,25 @@ pub struct TaskReport {
     pub verdicts: Agreement,
 }
 
-/// How often the physics and the static observer agree on the trials of `campaign_id`.
+/// How often the physics and the static observer agree on the trials of
+/// `campaign_id`: of each trial (method, object, placement) its latest graded run,
+/// the one the report counts (a link-fault repeat supersedes the run it repeats).
 pub fn agreement(trials: &[TrialRecord], campaign_id: &str) -> Agreement {
+    let in_campaign = |t: &&TrialRecord| t.trial.campaign_id.as_deref() == Some(campaign_id);
+    let mut latest = std::collections::HashMap::new();
+    for t in trials
+        .iter()
+        .filter(in_campaign)
+        .filter(|t| t.grading.is_some())
+    {
+        let id = latest
+            .entry((t.trial.method.as_str(), t.pairing_key()))
+            .or_insert(t.id);
+        *id = (*id).max(t.id);
+    }
     let mut verdicts = Agreement::default();
-    for t in trials {
-        if t.trial.campaign_id.as_deref() != Some(campaign_id) {
+    for t in trials.iter().filter(in_campaign) {
+        if latest.get(&(t.trial.method.as_str(), t.pairing_key())) != Some(&t.id) {
             continue;
         }
         if let Some((physics, statics)) = t.trial.outcome.as_ref().and_then(verdict_grades) {
@@ -502,6 +516,31 @@ mod tests {
         // The repeat of placement 0 is graded: that trial is done.
         trials.push(record(4, "laplace", "m1", 0, Some(("success", None))));
         assert_eq!(graded_trials(&trials), HashSet::from([key(0), key(2)]));
+    }
+
+    #[test]
+    fn verdicts_agree_over_the_latest_run_of_each_trial() {
+        use crate::trial::report::tests::record;
+        let run = |id, method, placement, physics: &str, statics: &str| {
+            let cause = (physics == "failure").then_some("registration");
+            let mut t = record(id, method, "m1", placement, Some((physics, cause)));
+            t.trial.outcome = Some(serde_json::json!({ "verdicts": {
+                "physics": { "grade": physics }, "static": { "grade": statics } } }));
+            t
+        };
+        let trials = vec![
+            // Placement 0 by laplace ran twice: the repeat (id 3) supersedes id 1.
+            run(1, "laplace", 0, "failure", "success"),
+            run(2, "best-single", 0, "success", "success"),
+            run(3, "laplace", 0, "success", "success"),
+            run(4, "laplace", 1, "partial", "failure"),
+        ];
+        let a = agreement(&trials, "c1");
+        assert_eq!((a.total, a.agree), (3, 2));
+        assert_eq!(a.counts[0][0], 2);
+        assert_eq!(a.counts[1][2], 1);
+        assert_eq!(a.counts[2][0], 0, "the superseded run is not counted");
+        assert_eq!(agreement(&trials, "c2").total, 0);
     }
 
     #[test]
