@@ -19,6 +19,7 @@ use crate::mesh::procedural::held_apart::Family;
 use crate::mesh::procedural::Category;
 use crate::sim::lab::{LabDraw, LabErrors};
 use crate::sim::observer::Agreement;
+use crate::trial::report::latest_graded;
 use crate::trial::{ObjectRef, Placement, Report, TrialRecord};
 use serde::Serialize;
 use std::collections::HashSet;
@@ -295,23 +296,11 @@ pub struct TaskReport {
 /// `campaign_id`: of each trial (method, object, placement) its latest graded run,
 /// the one the report counts (a link-fault repeat supersedes the run it repeats).
 pub fn agreement(trials: &[TrialRecord], campaign_id: &str) -> Agreement {
-    let in_campaign = |t: &&TrialRecord| t.trial.campaign_id.as_deref() == Some(campaign_id);
-    let mut latest = std::collections::HashMap::new();
-    for t in trials
+    let in_campaign = trials
         .iter()
-        .filter(in_campaign)
-        .filter(|t| t.grading.is_some())
-    {
-        let id = latest
-            .entry((t.trial.method.as_str(), t.pairing_key()))
-            .or_insert(t.id);
-        *id = (*id).max(t.id);
-    }
+        .filter(|t| t.trial.campaign_id.as_deref() == Some(campaign_id));
     let mut verdicts = Agreement::default();
-    for t in trials.iter().filter(in_campaign) {
-        if latest.get(&(t.trial.method.as_str(), t.pairing_key())) != Some(&t.id) {
-            continue;
-        }
+    for t in latest_graded(in_campaign).values() {
         if let Some((physics, statics)) = t.trial.outcome.as_ref().and_then(verdict_grades) {
             verdicts.add(physics, statics);
         }

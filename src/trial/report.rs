@@ -135,6 +135,23 @@ fn pct(count: u64, of: u64) -> Option<f64> {
     (of > 0).then(|| 100.0 * count as f64 / of as f64)
 }
 
+/// The latest (highest id) graded trial of each method and pairing key: the one the
+/// sign test pairs, and in a campaign the one that counts when a trial was run again.
+pub fn latest_graded<'t>(
+    trials: impl IntoIterator<Item = &'t TrialRecord>,
+) -> BTreeMap<(&'t str, PairingKey), &'t TrialRecord> {
+    let mut latest: BTreeMap<(&str, PairingKey), &TrialRecord> = BTreeMap::new();
+    for t in trials.into_iter().filter(|t| t.grading.is_some()) {
+        let entry = latest
+            .entry((t.trial.method.as_str(), t.pairing_key()))
+            .or_insert(t);
+        if t.id > entry.id {
+            *entry = t;
+        }
+    }
+    latest
+}
+
 impl Report {
     /// Builds the report from the trials in `scope`.
     pub fn from_trials(trials: &[TrialRecord], scope: Scope) -> Report {
@@ -150,8 +167,8 @@ impl Report {
 
         let mut summaries = Vec::new();
         let mut cause_counts = vec![vec![0_u64; methods.len()]; FailureCause::ALL.len()];
-        let mut scores: Vec<BTreeMap<PairingKey, (i64, i8)>> = Vec::new();
-        let mut superseded = 0;
+        let latest = latest_graded(selected.iter().copied());
+        let superseded = selected.iter().filter(|t| t.grading.is_some()).count() - latest.len();
         let mut superseded_in_campaigns = 0;
         for (col, (method, list)) in by_method.iter().enumerate() {
             let mut s = MethodSummary {
@@ -165,22 +182,12 @@ impl Report {
                 partial_pct: None,
                 failure_pct: None,
             };
-            // The latest graded trial (id, score) of each pairing key of this method.
-            let mut keyed: BTreeMap<PairingKey, (i64, i8)> = BTreeMap::new();
             for t in list {
                 let Some(g) = &t.grading else { continue };
-                let entry = (t.id, g.grade.score());
-                if let Some(old) = keyed.insert(t.pairing_key(), entry) {
-                    superseded += 1;
-                    if old.0 > t.id {
-                        keyed.insert(t.pairing_key(), old);
-                    }
-                }
-            }
-            for t in list {
-                let Some(g) = &t.grading else { continue };
-                let latest = keyed.get(&t.pairing_key()).map(|&(id, _)| id);
-                if t.trial.campaign_id.is_some() && latest != Some(t.id) {
+                let is_latest = latest
+                    .get(&(*method, t.pairing_key()))
+                    .is_some_and(|l| l.id == t.id);
+                if t.trial.campaign_id.is_some() && !is_latest {
                     superseded_in_campaigns += 1;
                     continue;
                 }
@@ -201,7 +208,6 @@ impl Report {
             s.partial_pct = pct(s.partial, s.graded);
             s.failure_pct = pct(s.failure, s.graded);
             summaries.push(s);
-            scores.push(keyed);
         }
 
         let graded_of = |col: usize| summaries[col].graded;
@@ -229,17 +235,20 @@ impl Report {
             counts: total_counts,
         };
 
-        let plain: Vec<BTreeMap<&PairingKey, i8>> = scores
-            .iter()
-            .map(|m| m.iter().map(|(k, &(_, s))| (k, s)).collect())
-            .collect();
+        // Each method's scores by pairing key, from its latest graded trials.
+        let mut scores: Vec<BTreeMap<&PairingKey, i8>> = vec![BTreeMap::new(); methods.len()];
+        for ((method, key), t) in &latest {
+            if let (Some(col), Some(g)) = (methods.iter().position(|m| m == method), &t.grading) {
+                scores[col].insert(key, g.grade.score());
+            }
+        }
         let mut sign_tests = Vec::new();
         for i in 0..methods.len() {
             for j in i + 1..methods.len() {
                 sign_tests.push(MethodComparison {
                     a: methods[i].clone(),
                     b: methods[j].clone(),
-                    test: paired_sign_test(&plain[i], &plain[j]),
+                    test: paired_sign_test(&scores[i], &scores[j]),
                 });
             }
         }
@@ -251,7 +260,7 @@ impl Report {
             trials: selected.len() as u64,
             graded,
             ungraded: selected.iter().filter(|t| t.grading.is_none()).count() as u64,
-            superseded,
+            superseded: superseded as u64,
             superseded_in_campaigns,
             methods: summaries,
             failure_causes: CauseTable {
