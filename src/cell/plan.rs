@@ -249,6 +249,8 @@ pub fn plan_trial(
                 ms = started.elapsed().as_secs_f64() * 1e3,
                 evaluations = refined.evaluations,
                 infeasible = refined.infeasible,
+                start_mean_epsilon = refined.start_mean_epsilon,
+                mean_epsilon = refined.mean_epsilon,
                 "laplace-sim refined"
             );
             let start = outcome.plan.grasp;
