@@ -25,6 +25,13 @@
 //! so the result is never worse than the start. The step halves when no move along any axis helps; the
 //! search stops at the evaluation budget or the smallest step.
 //!
+//! Beside the registered models, the mean counts one more object when the plan has
+//! a seen surface and a table: the solid under the segmented points
+//! ([`SeenSurface::solid`], weight [`SimRefineOptions::seen_solid_weight`] of the
+//! best fit's). It has the novel object's own shape where the camera saw it (a mug
+//! that widens towards its foot, which every model of the category lacks), so
+//! a grasp that holds on the models but meets a slope the models lack scores less.
+//!
 //! How one model's grasp is simulated is [`simulated_epsilon`]: with
 //! [`SimRefineOptions::approach`] (the default, and the cell's) the open hand
 //! approaches to contact from the pre-grasp first, exactly as the executor and the
@@ -71,6 +78,13 @@ pub struct SimRefineOptions {
     /// Models whose fit weight is below this fraction of the best are left out of
     /// the mean: their share of it is negligible, their simulation is not.
     pub min_weight: f64,
+    /// Weight of the solid under the seen surface ([`SeenSurface::solid`]) in the
+    /// mean, as a fraction of the best fit's: one more object the grasp is simulated
+    /// on, the one that has the real object's shape where the camera saw it. 0 leaves
+    /// it out (as without a seen surface or a table height).
+    pub seen_solid_weight: f64,
+    /// Side of the seen solid's height-map squares (m).
+    pub seen_solid_cell_m: f64,
     /// Auto-grasp settings.
     #[serde(skip)]
     pub autograsp: AutoGraspOptions,
@@ -96,6 +110,8 @@ impl Default for SimRefineOptions {
             depth_scan_out_m: 0.10,
             approach: Some(ApproachOptions::default()),
             min_weight: 0.01,
+            seen_solid_weight: 2.0,
+            seen_solid_cell_m: 0.004,
             autograsp: AutoGraspOptions::default(),
             quality: QualityParams::default(),
         }
@@ -467,7 +483,28 @@ pub fn refine_over_db(
                 })
         })
         .collect::<Result<Vec<_>, _>>()?;
-    let models = SimModel::of_fits(fits, &objects, &options.weights);
+    super::objective::check_value("sim refine seen_solid_weight", sim.seen_solid_weight, false)?;
+    super::objective::check_value("sim refine seen_solid_cell_m", sim.seen_solid_cell_m, true)?;
+    let seen_solid = match (seen, table_height_m) {
+        (Some(seen), Some(table)) if sim.seen_solid_weight > 0.0 => {
+            let mesh = seen.solid(table, sim.seen_solid_cell_m);
+            let source = std::path::Path::new("the seen surface's solid");
+            let object = GraspObject::new(&mesh, source).map_err(|e| PlanError::Parse {
+                path: source.to_path_buf(),
+                message: e.to_string(),
+            })?;
+            Some(object.with_table(Some(table)))
+        }
+        _ => None,
+    };
+    let mut models = SimModel::of_fits(fits, &objects, &options.weights);
+    if let Some(object) = &seen_solid {
+        models.push(SimModel {
+            object,
+            base_from_model: Pose::identity(),
+            weight: sim.seen_solid_weight,
+        });
+    }
     let objective =
         super::objective::Objective::new(fits, grasps, task, &options.kernel, &options.weights)?;
     let feasibility = Feasibility {
@@ -499,7 +536,10 @@ fn table_stop<'a>(
     options: &'a SimRefineOptions,
 ) -> Option<impl Fn(&Pose, f64) -> bool + 'a> {
     let approach = options.approach.as_ref()?;
-    let anchor = models.iter().max_by(|a, b| a.weight.total_cmp(&b.weight))?;
+    // The first of the heaviest: the best fit, not the seen solid after it.
+    let anchor = models
+        .iter()
+        .reduce(|a, b| if b.weight > a.weight { b } else { a })?;
     let preshape_rad = start.preshape_rad;
     let stops_on_table = move |palm: &Pose, spread_rad: f64| {
         let object_from_palm = anchor.base_from_model.inverse() * palm;

@@ -102,6 +102,10 @@ pub struct SeenSurface<'a> {
     options: SeenSurfaceOptions,
 }
 
+/// Height above the table of the seen solid's margin (m): a solid needs some
+/// thickness everywhere.
+pub const SOLID_SKIRT_M: f64 = 0.001;
+
 impl<'a> SeenSurface<'a> {
     /// The seen surface of `cloud` (base frame) for `hand`. Errors: an empty cloud
     /// or a non-finite or non-positive setting.
@@ -144,6 +148,82 @@ impl<'a> SeenSurface<'a> {
     /// Always false (a seen surface has points).
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
+    }
+
+    /// The solid under the seen surface: the thinned points' height map over squares
+    /// of `cell_m`, its corners as high as the highest point of the squares around
+    /// them, extruded down to the table top at `table_height_m` (base frame, m).
+    /// A closed, outward mesh in the base frame. It is the object as far as the
+    /// camera shows it: a wall that slopes out towards the foot is there where the
+    /// camera saw it, which the registered models may not have. A margin of one
+    /// square around the points stands `SOLID_SKIRT_M` above the table.
+    pub fn solid(&self, table_height_m: f64, cell_m: f64) -> crate::mesh::TriMesh {
+        let floor = table_height_m + SOLID_SKIRT_M;
+        let (mut lo, mut hi) = (self.points[0], self.points[0]);
+        for p in &self.points {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        // Cells, with one empty cell of margin on every side.
+        let nx = ((hi.x - lo.x) / cell_m).floor() as usize + 3;
+        let ny = ((hi.y - lo.y) / cell_m).floor() as usize + 3;
+        let (x0, y0) = (lo.x - cell_m, lo.y - cell_m);
+        let mut cell_top = vec![floor; nx * ny];
+        for p in &self.points {
+            let i = ((p.x - x0) / cell_m) as usize;
+            let j = ((p.y - y0) / cell_m) as usize;
+            let top = &mut cell_top[j * nx + i];
+            *top = top.max(p.z);
+        }
+        // Corner heights; corner (i, j) touches cells (i-1..=i, j-1..=j).
+        let corner = |i: usize, j: usize| -> f64 {
+            let mut h = floor;
+            for ci in i.saturating_sub(1)..(i + 1).min(nx) {
+                for cj in j.saturating_sub(1)..(j + 1).min(ny) {
+                    h = h.max(cell_top[cj * nx + ci]);
+                }
+            }
+            h
+        };
+        let (cx, cy) = (nx + 1, ny + 1);
+        let mut vertices = Vec::with_capacity(2 * cx * cy);
+        for z in [None, Some(table_height_m)] {
+            for j in 0..cy {
+                for i in 0..cx {
+                    let (x, y) = (x0 + i as f64 * cell_m, y0 + j as f64 * cell_m);
+                    vertices.push(Point3::new(x, y, z.unwrap_or_else(|| corner(i, j))));
+                }
+            }
+        }
+        let top = |i: usize, j: usize| (j * cx + i) as u32;
+        let bottom = |i: usize, j: usize| (cx * cy + j * cx + i) as u32;
+        let mut triangles = Vec::with_capacity(4 * nx * ny + 4 * (nx + ny));
+        for j in 0..ny {
+            for i in 0..nx {
+                let [a, b, c, d] = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)];
+                triangles.push([top(a.0, a.1), top(b.0, b.1), top(c.0, c.1)]);
+                triangles.push([top(a.0, a.1), top(c.0, c.1), top(d.0, d.1)]);
+                triangles.push([bottom(a.0, a.1), bottom(c.0, c.1), bottom(b.0, b.1)]);
+                triangles.push([bottom(a.0, a.1), bottom(d.0, d.1), bottom(c.0, c.1)]);
+            }
+        }
+        // The rim's corners counter-clockwise seen from above; each edge's wall faces
+        // out (to its right).
+        let rim: Vec<(usize, usize)> = (0..nx)
+            .map(|i| (i, 0))
+            .chain((0..ny).map(|j| (nx, j)))
+            .chain((1..=nx).rev().map(|i| (i, ny)))
+            .chain((1..=ny).rev().map(|j| (0, j)))
+            .collect();
+        for (k, &p) in rim.iter().enumerate() {
+            let q = rim[(k + 1) % rim.len()];
+            triangles.push([bottom(p.0, p.1), bottom(q.0, q.1), top(q.0, q.1)]);
+            triangles.push([bottom(p.0, p.1), top(q.0, q.1), top(p.0, p.1)]);
+        }
+        crate::mesh::TriMesh {
+            vertices,
+            triangles,
+        }
     }
 
     /// The settings.
@@ -214,6 +294,7 @@ pub(crate) mod tests {
     use super::*;
     use crate::geometry::pose_from_params;
     use crate::robot::shipped_robot;
+    use std::path::Path;
 
     /// Points on a vertical cylinder (radius 4 cm, 10 cm tall) at (0.6, 0, 0).
     pub(crate) fn cylinder_cloud() -> PointCloud {
@@ -267,6 +348,66 @@ pub(crate) mod tests {
         assert!(hit.behind_grasp_m > 0.0, "{hit:?}");
         let empty = PointCloud::from_points(Vec::new());
         assert!(SeenSurface::new(&hand, &empty, SeenSurfaceOptions::default()).is_err());
+    }
+
+    #[test]
+    fn the_seen_solid_is_closed_stands_on_the_table_and_keeps_a_slope() {
+        // A frustum narrowing upwards (the held-apart conical mug: radius 49 mm at
+        // the foot, 29 mm at the top, 105 mm tall) at (0.6, 0) on a table at z = 0.
+        let (foot, top, height) = (0.049, 0.029, 0.105);
+        let mut points = Vec::new();
+        for i in 0..90 {
+            let a = i as f64 / 90.0 * std::f64::consts::TAU;
+            for j in 0..=30 {
+                let f = j as f64 / 30.0;
+                let r = foot + (top - foot) * f;
+                points.push(Point3::new(0.6 + r * a.cos(), r * a.sin(), height * f));
+                let r_top = top * f;
+                points.push(Point3::new(0.6 + r_top * a.cos(), r_top * a.sin(), height));
+            }
+        }
+        let cloud = PointCloud::from_points(
+            points
+                .iter()
+                .map(|p| Point3::new(p.x as f32, p.y as f32, p.z as f32))
+                .collect(),
+        );
+        let robot = shipped_robot();
+        let hand = crate::quality::autograsp::tests::hand_of(&robot);
+        let seen = SeenSurface::new(&hand, &cloud, SeenSurfaceOptions::default()).unwrap();
+        let solid = seen.solid(0.0, 0.004);
+        let object = crate::quality::autograsp::GraspObject::new(&solid, Path::new("solid"))
+            .expect("a closed, outward mesh");
+        // Its volume is the frustum's, grown by at most a square on every side.
+        let frustum = std::f64::consts::PI * height / 3.0 * (foot * foot + foot * top + top * top);
+        let volume: f64 = (0..solid.triangles.len())
+            .map(|i| {
+                let [a, b, c] = solid.corners(i);
+                a.coords.dot(&b.coords.cross(&c.coords)) / 6.0
+            })
+            .sum();
+        assert!(
+            volume > frustum && volume < 1.6 * frustum,
+            "{volume} against {frustum}"
+        );
+        assert!(
+            object.centroid.z > 0.02 && object.centroid.z < 0.05,
+            "{:?}",
+            object.centroid
+        );
+        let lowest = solid.vertices.iter().map(|v| v.z).fold(f64::MAX, f64::min);
+        let highest = solid.vertices.iter().map(|v| v.z).fold(f64::MIN, f64::max);
+        assert_eq!(lowest, 0.0);
+        assert!((highest - height).abs() < 1e-6, "{highest}");
+        // Between the top's and the foot's radius the solid is as low as the slope
+        // (a cylinder around the top would stand 105 mm there).
+        let on_slope = solid
+            .vertices
+            .iter()
+            .filter(|v| v.z > 0.0 && ((v.x - 0.6).hypot(v.y) - 0.044).abs() < 0.0015)
+            .map(|v| v.z)
+            .fold(0.0, f64::max);
+        assert!(on_slope > 0.01 && on_slope < 0.08, "{on_slope}");
     }
 
     #[test]
