@@ -128,7 +128,8 @@ impl SimRefineOptions {
     }
 }
 
-/// One registered model as the simulator sees it.
+/// One registered model as the simulator sees it, or the solid under the seen
+/// surface.
 pub struct SimModel<'a> {
     /// The model's grasp object (its mesh in the model frame, with its table).
     pub object: &'a GraspObject,
@@ -136,6 +137,8 @@ pub struct SimModel<'a> {
     pub base_from_model: Pose,
     /// Its fit weight `phi_i` (any positive scale).
     pub weight: f64,
+    /// A registered model; false for the seen solid ([`SeenSurface::solid`]).
+    pub registered: bool,
 }
 
 impl<'a> SimModel<'a> {
@@ -158,6 +161,7 @@ impl<'a> SimModel<'a> {
                 object,
                 base_from_model: f.base_from_model,
                 weight: (l - best).exp(),
+                registered: true,
             })
             .collect()
     }
@@ -503,6 +507,7 @@ pub fn refine_over_db(
             object,
             base_from_model: Pose::identity(),
             weight: sim.seen_solid_weight,
+            registered: false,
         });
     }
     let objective =
@@ -522,7 +527,7 @@ pub fn refine_over_db(
     )
 }
 
-/// When `start`'s approach to contact on the heaviest model stops on the table
+/// When `start`'s approach to contact on the heaviest registered model stops on the table
 /// (the grasp of a flat tool, the fingers pre-shaped to sweep along the table and
 /// under it), the test that a candidate's approach stops there too; `None`
 /// otherwise. The static simulator cannot tell the difference, the physics can: a
@@ -536,10 +541,10 @@ fn table_stop<'a>(
     options: &'a SimRefineOptions,
 ) -> Option<impl Fn(&Pose, f64) -> bool + 'a> {
     let approach = options.approach.as_ref()?;
-    // The first of the heaviest: the best fit, not the seen solid after it.
     let anchor = models
         .iter()
-        .reduce(|a, b| if b.weight > a.weight { b } else { a })?;
+        .filter(|m| m.registered)
+        .max_by(|a, b| a.weight.total_cmp(&b.weight))?;
     let preshape_rad = start.preshape_rad;
     let stops_on_table = move |palm: &Pose, spread_rad: f64| {
         let object_from_palm = anchor.base_from_model.inverse() * palm;
@@ -717,6 +722,7 @@ mod tests {
             object: &object,
             base_from_model: Pose::identity(),
             weight: 1.0,
+            registered: true,
         }];
         let feasibility = Feasibility {
             reach: None,
@@ -775,6 +781,7 @@ mod tests {
             object: &object,
             base_from_model: Pose::identity(),
             weight: 1.0,
+            registered: true,
         }];
         let feasibility = Feasibility {
             reach: None,
@@ -819,6 +826,7 @@ mod tests {
             object: &objects[i],
             base_from_model: Pose::identity(),
             weight,
+            registered: true,
         };
         let fits: Vec<ModelFit> = (0..1)
             .map(|i| ModelFit {
