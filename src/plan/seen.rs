@@ -380,12 +380,7 @@ pub(crate) mod tests {
             .expect("a closed, outward mesh");
         // Its volume is the frustum's, grown by at most a square on every side.
         let frustum = std::f64::consts::PI * height / 3.0 * (foot * foot + foot * top + top * top);
-        let volume: f64 = (0..solid.triangles.len())
-            .map(|i| {
-                let [a, b, c] = solid.corners(i);
-                a.coords.dot(&b.coords.cross(&c.coords)) / 6.0
-            })
-            .sum();
+        let volume = crate::mesh::topology::signed_volume(&solid);
         assert!(
             volume > frustum && volume < 1.6 * frustum,
             "{volume} against {frustum}"
