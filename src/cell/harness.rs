@@ -30,6 +30,9 @@ use std::time::{Duration, Instant};
 /// How long the cell may take to come up (every stage subscribed).
 pub const STARTUP_TIMEOUT: Duration = Duration::from_secs(60);
 
+/// Longest wait for the simulated devices to load a trial's scene.
+pub const SCENE_LOAD_TIMEOUT: Duration = Duration::from_secs(30);
+
 /// How the harness starts the cell.
 #[derive(Debug, Clone)]
 pub struct HarnessOptions {
@@ -501,6 +504,32 @@ impl Cell {
         &self.options.log_path
     }
 
+    /// Waits until every running simulated device has loaded the scene file just
+    /// written, as a person puts the object on the table before the trial is
+    /// asked for: a device preparing a scene (its physics takes a core for about
+    /// half a second) would otherwise run beside the trial's perception and
+    /// planning and slow them. A device that has not loaded it within
+    /// [`SCENE_LOAD_TIMEOUT`] is logged; the trial goes ahead.
+    fn wait_until_devices_feel_the_scene(&mut self) {
+        let dir = self.options.stage.run_dir.join("sim");
+        let acks: Vec<PathBuf> = self
+            .sims
+            .iter_mut()
+            .filter_map(|p| match p.child.try_wait() {
+                Ok(None) => Some(crate::sim::world::scene_loaded_path(&dir, p.child.id())),
+                _ => None,
+            })
+            .collect();
+        let scene = self.sim_scene_path();
+        if !crate::sim::world::wait_until_scene_loaded(&scene, &acks, SCENE_LOAD_TIMEOUT) {
+            tracing::warn!(
+                scene = %scene.display(),
+                "the simulated devices have not loaded the scene within {} s; the trial goes ahead",
+                SCENE_LOAD_TIMEOUT.as_secs_f64()
+            );
+        }
+    }
+
     /// The scene file the simulated devices feel.
     fn sim_scene_path(&self) -> PathBuf {
         self.options.stage.run_dir.join("sim").join("scene.toml")
@@ -687,6 +716,7 @@ impl Cell {
             setup.write(&self.options.stage.run_dir)?;
             if self.options.simulated_devices {
                 setup.write_sim_scene(&self.sim_scene_path())?;
+                self.wait_until_devices_feel_the_scene();
             }
         }
         let request = TrialRequest::new(trial_id, monotonic_now_ns(), category, task, method)?

@@ -91,6 +91,8 @@ struct Trial {
     began: Instant,
     started_at: UtcTimestamp,
     cloud_ns: u64,
+    /// The snapshot, until it is written to its file ([`Logger::bookkeeping`]).
+    snapshot: Option<crate::cloud::PointCloud>,
     snapshot_path: Option<PathBuf>,
     camera: Option<CameraStatus>,
     fits: Option<Fits>,
@@ -108,6 +110,7 @@ impl Trial {
             began: Instant::now(),
             started_at,
             cloud_ns: 0,
+            snapshot: None,
             snapshot_path: None,
             camera: None,
             fits: None,
@@ -115,6 +118,13 @@ impl Trial {
             first_command_ns: 0,
             closing_joints: None,
             end: None,
+        }
+    }
+
+    /// Writes the snapshot to its file, once.
+    fn save_snapshot(&mut self, run_dir: &Path) {
+        if let Some(cloud) = self.snapshot.take() {
+            self.snapshot_path = save_snapshot(run_dir, self.request.trial_id, &cloud);
         }
     }
 
@@ -209,6 +219,18 @@ fn best_fit(fits: Option<&Fits>) -> Option<Pose> {
         .and_then(|f| f.base_from_model.to_pose("fit").ok())
 }
 
+/// How long without a result before the slow bookkeeping runs with no trial
+/// executing ([`Logger::may_do_bookkeeping`]).
+const QUIET: Duration = Duration::from_secs(1);
+
+/// [`Logger::may_do_bookkeeping`] for the trials followed, `since_result` after
+/// the last result.
+fn bookkeeping_may_run(trials: &BTreeMap<u64, Trial>, since_result: Duration) -> bool {
+    let planning = trials.values().any(|t| t.plan.is_none() && t.end.is_none());
+    let executing = trials.values().any(|t| t.plan.is_some() && t.end.is_none());
+    !planning && (executing || since_result > QUIET)
+}
+
 /// The log stage's state: the trials being followed and what grades them.
 struct Logger {
     options: LogOptions,
@@ -222,6 +244,8 @@ struct Logger {
     dbs: BTreeMap<String, Option<crate::category::CategoryDb>>,
     /// Recorded trials whose picture is still to be drawn.
     pictures_due: Vec<crate::trial::TrialId>,
+    /// When the last result was answered.
+    last_result: Instant,
     /// Graded trials the file refused (a full disk), oldest first: written, and
     /// only then answered, as soon as it takes them.
     unrecorded: Vec<Concluded>,
@@ -409,6 +433,24 @@ impl Logger {
         }
     }
 
+    /// Whether the slow bookkeeping (snapshot files, pictures) may run now: never
+    /// while a followed trial waits for its camera, perception or plan (it would
+    /// take a core from them), and not just after a result, when the next request
+    /// may be on its way; but while a trial executes, or after [`QUIET`] without a
+    /// result.
+    fn may_do_bookkeeping(&self) -> bool {
+        bookkeeping_may_run(&self.followed.trials, self.last_result.elapsed())
+    }
+
+    /// Writes the snapshots taken and draws the pictures of the trials recorded.
+    fn bookkeeping(&mut self) {
+        let run_dir = self.options.run_dir.clone();
+        for trial in self.followed.trials.values_mut() {
+            trial.save_snapshot(&run_dir);
+        }
+        self.draw_pictures();
+    }
+
     /// Draws the picture of every recorded trial that has none yet, writes it to
     /// `<run dir>/pictures/<id>.png` and names it in the trial's row. A picture
     /// that cannot be drawn is logged; the trial stays recorded.
@@ -448,8 +490,10 @@ impl Logger {
     }
 
     /// Grades a finished trial: its row, grade and result, to be recorded.
-    fn finish(&mut self, trial: Trial, ending: Ending) -> Result<Concluded, CellError> {
+    fn finish(&mut self, mut trial: Trial, ending: Ending) -> Result<Concluded, CellError> {
         let trial_id = trial.request.trial_id;
+        // Its row names the snapshot's file.
+        trial.save_snapshot(&self.options.run_dir);
         let setup = TrialSetup::read(&self.options.run_dir, trial_id).unwrap_or_else(|e| {
             tracing::error!(trial_id, "{e}");
             None
@@ -722,22 +766,21 @@ pub fn snapshot_path(run_dir: &Path, trial_id: u64) -> PathBuf {
     run_dir.join("snapshots").join(format!("{trial_id}.pcd"))
 }
 
-/// Writes the trial's snapshot (atomically); its path, or `None` (logged) when it
-/// could not be written — the trial is still recorded.
-fn save_snapshot(run_dir: &Path, cloud: &crate::ipc::CloudSample) -> Option<PathBuf> {
-    let trial_id = cloud.header().trial_id;
+/// Writes trial `trial_id`'s snapshot (atomically); its path, or `None` (logged)
+/// when it could not be written — the trial is still recorded.
+fn save_snapshot(
+    run_dir: &Path,
+    trial_id: u64,
+    cloud: &crate::cloud::PointCloud,
+) -> Option<PathBuf> {
     let path = snapshot_path(run_dir, trial_id);
     let written = path
         .parent()
         .map_or(Ok(()), std::fs::create_dir_all)
         .map_err(|e| e.to_string())
         .and_then(|()| {
-            crate::cloud::io::write_cloud(
-                &path,
-                &cloud.to_cloud(),
-                crate::cloud::io::CloudEncoding::Binary,
-            )
-            .map_err(|e| e.to_string())
+            crate::cloud::io::write_cloud(&path, cloud, crate::cloud::io::CloudEncoding::Binary)
+                .map_err(|e| e.to_string())
         });
     match written {
         Ok(()) => Some(path),
@@ -778,6 +821,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
         hand: crate::robot::hand::HandModel::load(config)?,
         dbs: BTreeMap::new(),
         pictures_due: Vec::new(),
+        last_result: Instant::now(),
         unrecorded: Vec::new(),
         followed: Followed {
             trials: BTreeMap::new(),
@@ -829,7 +873,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             let h = *cloud.header();
             if let Some(t) = logger.followed.trial(&requests, h.trial_id)? {
                 t.cloud_ns = h.stamp_ns;
-                t.snapshot_path = save_snapshot(&logger.options.run_dir, &cloud);
+                t.snapshot = Some(cloud.to_cloud());
             }
         }
         while let Some(c) = camera_statuses.try_receive()? {
@@ -908,6 +952,7 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
             match written {
                 Ok(result) => {
                     results.send(&result)?;
+                    logger.last_result = Instant::now();
                     write_failing = false;
                 }
                 Err(e) => {
@@ -922,8 +967,11 @@ pub fn run(config: &CellConfig, domain: &Domain, options: LogOptions) -> Result<
                 }
             }
         }
-        logger.draw_pictures();
+        if logger.may_do_bookkeeping() {
+            logger.bookkeeping();
+        }
     }
+    logger.bookkeeping();
     notify::stopping();
     Ok(())
 }
@@ -984,6 +1032,36 @@ mod tests {
         assert_eq!(trial.request, request);
         assert!(followed.trial(&requests, 3).unwrap().is_none());
         assert_eq!(journaled(&followed.journal).len(), 1);
+    }
+
+    /// Snapshot files and pictures wait while a trial is between its request and
+    /// its plan, and just after a result (the next request is on its way); they
+    /// are written while a trial executes or once the cell is quiet.
+    #[test]
+    fn bookkeeping_waits_for_perception_and_planning() {
+        let request = TrialRequest::new(5, 0, "mug", "side", "laplace-sim").unwrap();
+        let started: UtcTimestamp = "2026-12-06T20:00:00Z".parse().unwrap();
+        let mut trials = BTreeMap::new();
+        let just = Duration::from_millis(10);
+        let quiet = QUIET + Duration::from_millis(1);
+        assert!(!bookkeeping_may_run(&trials, just), "just after a result");
+        assert!(bookkeeping_may_run(&trials, quiet), "a quiet cell");
+        trials.insert(5, Trial::new(request, started));
+        assert!(!bookkeeping_may_run(&trials, quiet), "perceiving");
+        trials.get_mut(&5).unwrap().plan = Some(GraspPlan::default());
+        assert!(bookkeeping_may_run(&trials, just), "executing");
+        trials.insert(6, Trial::new(request, started));
+        assert!(
+            !bookkeeping_may_run(&trials, quiet),
+            "one executes, one plans"
+        );
+        trials.remove(&6);
+        trials.get_mut(&5).unwrap().end = Some(ExecutionStatus::default());
+        assert!(
+            !bookkeeping_may_run(&trials, just),
+            "ended, next on its way"
+        );
+        assert!(bookkeeping_may_run(&trials, quiet));
     }
 
     #[test]

@@ -138,7 +138,8 @@ pub struct DemoArgs {
     /// The novel objects and the lab's errors.
     #[command(flatten)]
     pub world: WorldArgs,
-    /// Planning method: laplace, gaussian, gaussian-r or best-single.
+    /// Planning method: laplace, gaussian, gaussian-r, best-single (the paper's) or
+    /// laplace-sim (Laplace refined in the grasp simulator).
     #[arg(long, default_value = "laplace")]
     pub method: String,
     /// Seed of objects, placements and noise.
@@ -245,7 +246,8 @@ pub struct TrialArgs {
     /// Task.
     #[arg(long)]
     pub task: String,
-    /// Planning method: laplace, gaussian, gaussian-r or best-single.
+    /// Planning method: laplace, gaussian, gaussian-r, best-single (the paper's) or
+    /// laplace-sim (Laplace refined in the grasp simulator).
     #[arg(long, default_value = "laplace")]
     pub method: String,
     /// With a simulated camera: seed of the novel object, its placement and noise.

@@ -586,6 +586,7 @@ impl WorldWatch {
             hand,
             physics,
             Duration::from_millis(50),
+            Some(scene_loaded_path(&dir, std::process::id())),
         );
         Ok((watch, link, dir))
     }
@@ -595,13 +596,17 @@ impl WorldWatch {
     /// while there is no file. A file that fails to load is logged and the
     /// world emptied (the devices feel nothing rather than a stale object). With
     /// `physics` each loaded world is prepared for the lift test
-    /// ([`SimWorld::with_physics`]) before it replaces the last one.
+    /// ([`SimWorld::with_physics`]) before it replaces the last one. After each
+    /// load (or failure) the file's modification time is written to `loaded`
+    /// ([`scene_modified_ns`]), so that whoever wrote the scene can wait until the
+    /// devices feel it ([`wait_until_scene_loaded`]).
     pub fn scene_file(
         path: PathBuf,
         config: CellConfig,
         hand: Arc<HandModel>,
         physics: Option<PhysicsOptions>,
         poll: Duration,
+        loaded: Option<PathBuf>,
     ) -> WorldWatch {
         let watch = WorldWatch::fixed(None);
         let (current, stop) = (Arc::clone(&watch.current), Arc::clone(&watch.stop));
@@ -633,6 +638,11 @@ impl WorldWatch {
                             },
                         };
                         *current.lock().unwrap_or_else(|e| e.into_inner()) = world;
+                        if let (Some(ack), Some(ns)) = (&loaded, modified.and_then(since_epoch_ns)) {
+                            if let Err(e) = crate::fsio::write_atomically(ack, ns.to_string().as_bytes()) {
+                                tracing::warn!("cannot acknowledge the scene in {}: {e}", ack.display());
+                            }
+                        }
                     }
                     std::thread::sleep(poll);
                 }
@@ -649,6 +659,52 @@ impl WorldWatch {
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .clone()
+    }
+}
+
+/// Where a simulator process `pid` with state directory `state_dir` acknowledges
+/// the scene it loaded last ([`WorldWatch::scene_file`]).
+pub fn scene_loaded_path(state_dir: &Path, pid: u32) -> PathBuf {
+    state_dir.join(format!("scene-loaded.{pid}"))
+}
+
+/// A time as nanoseconds since the Unix epoch (`None` before it).
+fn since_epoch_ns(t: SystemTime) -> Option<u64> {
+    t.duration_since(SystemTime::UNIX_EPOCH)
+        .ok()
+        .map(|d| d.as_nanos() as u64)
+}
+
+/// The modification time of `path` (ns since the epoch), as a watcher acknowledges it.
+pub fn scene_modified_ns(path: &Path) -> Option<u64> {
+    std::fs::metadata(path)
+        .and_then(|m| m.modified())
+        .ok()
+        .and_then(since_epoch_ns)
+}
+
+/// Waits until every acknowledgement file in `acks` names the scene file `scene`
+/// as it is now (its modification time): the simulated devices feel the scene
+/// just written. Polls every 5 ms; false when `timeout` passed first.
+pub fn wait_until_scene_loaded(scene: &Path, acks: &[PathBuf], timeout: Duration) -> bool {
+    let Some(want) = scene_modified_ns(scene) else {
+        return false;
+    };
+    let started = std::time::Instant::now();
+    loop {
+        let loaded = acks.iter().all(|ack| {
+            std::fs::read_to_string(ack)
+                .ok()
+                .and_then(|t| t.trim().parse::<u64>().ok())
+                == Some(want)
+        });
+        if loaded {
+            return true;
+        }
+        if started.elapsed() > timeout {
+            return false;
+        }
+        std::thread::sleep(Duration::from_millis(5));
     }
 }
 
@@ -859,6 +915,45 @@ mod tests {
     }
 
     use crate::mesh::TriMesh;
+
+    /// Whoever writes a scene can wait until a watching device has loaded it: the
+    /// watcher acknowledges each load (a failed one too) with the file's
+    /// modification time, and a stale acknowledgement is not taken for it.
+    #[test]
+    fn a_watched_scene_is_acknowledged_once_loaded() {
+        let dir = crate::fsio::TempDir::new("scene-ack").unwrap();
+        let scene = dir.join("scene.toml");
+        let ack = scene_loaded_path(&dir, 7);
+        std::fs::write(&scene, "objects = [").unwrap();
+        let config = CellConfig::load(Path::new(crate::config::BUILTIN_CONFIG)).unwrap();
+        let watch = WorldWatch::scene_file(
+            scene.clone(),
+            config,
+            hand(),
+            None,
+            Duration::from_millis(5),
+            Some(ack.clone()),
+        );
+        assert!(wait_until_scene_loaded(
+            &scene,
+            std::slice::from_ref(&ack),
+            Duration::from_secs(10)
+        ));
+        assert!(watch.get().is_none(), "a scene that fails to load is empty");
+        std::fs::write(&ack, "12").unwrap();
+        drop(watch);
+        std::thread::sleep(Duration::from_millis(20));
+        assert!(!wait_until_scene_loaded(
+            &scene,
+            &[ack],
+            Duration::from_millis(30)
+        ));
+        assert!(!wait_until_scene_loaded(
+            &dir.join("missing.toml"),
+            &[],
+            Duration::from_millis(1)
+        ));
+    }
 
     #[test]
     fn the_contact_force_is_penetration_times_stiffness_along_the_normal() {
