@@ -391,7 +391,9 @@ pub struct Summary {
     pub failure: usize,
     /// Results lost (the log stage died).
     pub lost: usize,
-    /// Median snapshot-to-grasp-command time over executed trials (ms).
+    /// Trials whose grasp was commanded (the others have no command time).
+    pub commanded: usize,
+    /// Median snapshot-to-grasp-command time over the commanded trials (ms).
     pub median_snapshot_to_grasp_command_ms: Option<f64>,
     /// Median perception time (ms).
     pub median_perceive_ms: Option<f64>,
@@ -408,6 +410,10 @@ impl Summary {
             partial: count("partial"),
             failure: count("failure"),
             lost: count("lost"),
+            commanded: lines
+                .iter()
+                .filter(|l| l.snapshot_to_grasp_command_ms.is_finite())
+                .count(),
             median_snapshot_to_grasp_command_ms: finite_median(
                 lines.iter().map(|l| l.snapshot_to_grasp_command_ms),
             ),
@@ -419,7 +425,7 @@ impl Summary {
     fn text(&self) -> String {
         let ms = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0} ms"));
         format!(
-            "{} trials: {} success, {} partial, {} failure{}; median snapshot->grasp command {} (perceive {}, plan {})\n",
+            "{} trials: {} success, {} partial, {} failure{}; median snapshot->grasp command {} over {} commanded (perceive {}, plan {})\n",
             self.trials,
             self.success,
             self.partial,
@@ -430,6 +436,7 @@ impl Summary {
                 String::new()
             },
             ms(self.median_snapshot_to_grasp_command_ms),
+            self.commanded,
             ms(self.median_perceive_ms),
             ms(self.median_plan_ms)
         )
@@ -919,4 +926,48 @@ pub fn trial(config_path: &Path, args: TrialArgs) -> anyhow::Result<ExitCode> {
     };
     emit(args.json, &line, |l| format!("{}\n", l.text()))?;
     Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn line(grade: &str, command_ms: f64) -> TrialLine {
+        TrialLine {
+            trial_id: 1,
+            object: "squat-mug-1-0".into(),
+            placement: 0,
+            placement_xy_yaw: [0.6, 0.0, 0.0],
+            task: "side".into(),
+            method: "laplace-sim".into(),
+            lab: None,
+            grade: grade.into(),
+            cause: None,
+            snapshot_to_grasp_command_ms: command_ms,
+            capture_ms: 20.0,
+            perceive_ms: 80.0,
+            plan_ms: 90.0,
+            execute_ms: 5000.0,
+            total_ms: 5200.0,
+        }
+    }
+
+    /// A trial refused before any command has no command time: the median is over
+    /// the commanded trials, and the summary says how many those are.
+    #[test]
+    fn the_summary_counts_the_commanded_trials_of_its_median() {
+        let summary = Summary::of(&[
+            line("success", 180.0),
+            line("failure", f64::NAN),
+            line("success", 200.0),
+            line("partial", 220.0),
+        ]);
+        assert_eq!((summary.trials, summary.commanded), (4, 3));
+        assert_eq!(summary.median_snapshot_to_grasp_command_ms, Some(200.0));
+        let text = summary.text();
+        assert!(
+            text.contains("4 trials: 2 success, 1 partial, 1 failure; median snapshot->grasp command 200 ms over 3 commanded"),
+            "{text}"
+        );
+    }
 }
