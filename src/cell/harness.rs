@@ -472,7 +472,7 @@ impl Cell {
 
     /// Where the arm simulator keeps its audit of the commands it received.
     fn audit_path(&self) -> PathBuf {
-        self.options.stage.run_dir.join("sim").join("audit.json")
+        self.sim_dir().join("audit.json")
     }
 
     /// The arm simulator's audit of every command it received so far (simulated
@@ -511,7 +511,7 @@ impl Cell {
     /// planning and slow them. A device that has not loaded it within
     /// [`SCENE_LOAD_TIMEOUT`] is logged; the trial goes ahead.
     fn wait_until_devices_feel_the_scene(&mut self) {
-        let dir = self.options.stage.run_dir.join("sim");
+        let dir = self.sim_dir();
         let acks: Vec<PathBuf> = self
             .sims
             .iter_mut()
@@ -530,14 +530,19 @@ impl Cell {
         }
     }
 
+    /// The simulated devices' directory: their scene file and shared state.
+    fn sim_dir(&self) -> PathBuf {
+        self.options.stage.run_dir.join("sim")
+    }
+
     /// The scene file the simulated devices feel.
     fn sim_scene_path(&self) -> PathBuf {
-        self.options.stage.run_dir.join("sim").join("scene.toml")
+        self.sim_dir().join("scene.toml")
     }
 
     /// `--config --scene --state-dir` of the simulated devices.
     fn sim_world_args(&self) -> Vec<String> {
-        let dir = self.options.stage.run_dir.join("sim");
+        let dir = self.sim_dir();
         vec![
             "--config".into(),
             self.options.stage.config.display().to_string(),

@@ -617,7 +617,7 @@ impl WorldWatch {
                 crate::hw::realtime::lower_thread_priority();
                 let mut seen: Option<SystemTime> = None;
                 while !stop.load(Ordering::Relaxed) {
-                    let modified = std::fs::metadata(&path).and_then(|m| m.modified()).ok();
+                    let modified = modified_at(&path);
                     if modified != seen {
                         seen = modified;
                         let world = match modified {
@@ -675,12 +675,14 @@ fn since_epoch_ns(t: SystemTime) -> Option<u64> {
         .map(|d| d.as_nanos() as u64)
 }
 
+/// The modification time of `path` (`None` without a file).
+fn modified_at(path: &Path) -> Option<SystemTime> {
+    std::fs::metadata(path).and_then(|m| m.modified()).ok()
+}
+
 /// The modification time of `path` (ns since the epoch), as a watcher acknowledges it.
 pub fn scene_modified_ns(path: &Path) -> Option<u64> {
-    std::fs::metadata(path)
-        .and_then(|m| m.modified())
-        .ok()
-        .and_then(since_epoch_ns)
+    modified_at(path).and_then(since_epoch_ns)
 }
 
 /// Waits until every acknowledgement file in `acks` names the scene file `scene`
