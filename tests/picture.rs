@@ -48,9 +48,17 @@ fn a_campaign_trial_has_a_picture_and_trial_show_writes_png_and_a_valid_glb() {
     assert!(ok, "campaign failed:\n{out}\n{err}");
     let log = TrialLog::open_existing(&log_path).unwrap();
     let rows = log.trials().unwrap();
-    assert_eq!(rows.len(), 1, "{out}");
-    let id = rows[0].id;
-    assert!(rows[0].trial.campaign_id.is_some());
+    // One trial, and one more row for each run again after a link fault (a
+    // loaded host can drop the FRI link); the last row is the counted one.
+    let repeats = rows.len() - 1;
+    assert!(
+        repeats == 0 || out.contains(&format!("{repeats} trial(s) run again after a link fault")),
+        "{} rows for one trial:\n{out}",
+        rows.len()
+    );
+    let row = rows.last().expect("the trial's row");
+    let id = row.id;
+    assert!(row.trial.campaign_id.is_some());
 
     // The log stage drew the picture and named it in the row.
     let named = log
