@@ -149,6 +149,19 @@ pub struct RobotConfig {
     pub palm_link: String,
     /// Distance (m) the pre-grasp pose backs off from the grasp along the palm's -z.
     pub pregrasp_offset_m: f64,
+    /// Joints A1..A7 (rad) where the arm rests between trials, out of the camera's
+    /// view of the table: the executor parks there after every grasp, and plans
+    /// are checked from there.
+    #[serde(default = "default_park_joints_rad")]
+    pub park_joints_rad: [f64; 7],
+}
+
+/// The default park joints: elbow up, the palm about 0.48 m over the table, facing
+/// down, clear of the camera's view of the table.
+pub const DEFAULT_PARK_JOINTS_RAD: [f64; 7] = [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0];
+
+fn default_park_joints_rad() -> [f64; 7] {
+    DEFAULT_PARK_JOINTS_RAD
 }
 
 /// The table: a horizontal plane with a rectangular extent.

@@ -4,7 +4,7 @@
 
 use graspcell::category::CategoryDb;
 use graspcell::cell::harness::{
-    novel_object, placement_rng, random_placement, Cell, HarnessOptions, HOME_JOINTS_RAD,
+    novel_object, placement_rng, random_placement, Cell, HarnessOptions,
 };
 use graspcell::cell::setup::TrialSetup;
 use graspcell::cell::StageArgs;
@@ -45,7 +45,6 @@ fn start(tag: &str, domain: &Domain) -> Fixture {
         hold_s: 0.1,
         trial_timeout_s: 120.0,
         simulated_devices: true,
-        home_joints_rad: HOME_JOINTS_RAD,
         observer: Default::default(),
         protocol: graspcell::ipc::Protocol::Cell,
         faulty_links: false,

@@ -29,7 +29,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Where the simulated arm starts: palm about 0.49 m over the table, facing down.
-const HOME: ArmJoints = [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0];
+const HOME: ArmJoints = graspcell::config::DEFAULT_PARK_JOINTS_RAD;
 /// Where the emulated object stops F1, F2, F3 (rad).
 const CONTACT_RAD: [f64; 3] = [1.0, 1.1, 1.2];
 

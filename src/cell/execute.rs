@@ -82,6 +82,7 @@ fn status_phase(phase: Phase) -> Option<IpcPhase> {
         Phase::Close => Some(IpcPhase::Closing),
         Phase::Lift => Some(IpcPhase::Lifting),
         Phase::Hold => Some(IpcPhase::Holding),
+        Phase::Park => None,
     }
 }
 
@@ -276,6 +277,17 @@ pub fn run(
         });
         if let Some(e) = send_error {
             return Err(e.into());
+        }
+        // The trial ends with the arm parked, so the next one starts from there.
+        match executor.release_and_park(&config.robot.park_joints_rad) {
+            Ok(Some(park)) => {
+                tracing::info!(trial_id, total_s = park.total_s, "released and parked")
+            }
+            Ok(None) => {}
+            Err(e) => tracing::warn!(
+                trial_id,
+                "release and park failed: {e}; the arm holds where it stopped"
+            ),
         }
         match report.outcome {
             Outcome::Success => send(IpcPhase::Done, 0)?,

@@ -50,8 +50,6 @@ pub struct HarnessOptions {
     pub trial_timeout_s: f64,
     /// Start `cell-sim-arm` and `cell-sim-hand` (simulated devices).
     pub simulated_devices: bool,
-    /// Joints A1..A6 (rad) the simulated arm starts at.
-    pub home_joints_rad: [f64; 7],
     /// Who grades the trials (the log stage's `--observer`).
     pub observer: super::log::ObserverKind,
     /// Whose settings the trials' perception and planning use (the cell's, or the
@@ -82,7 +80,6 @@ impl HarnessOptions {
             hold_s: 0.3,
             trial_timeout_s: 120.0,
             simulated_devices: true,
-            home_joints_rad: HOME_JOINTS_RAD,
             observer: super::log::ObserverKind::default(),
             protocol: Protocol::Cell,
             faulty_links: false,
@@ -90,10 +87,6 @@ impl HarnessOptions {
         })
     }
 }
-
-/// The arm's resting configuration between trials: elbow up, hand above the table,
-/// clear of the camera's view of the table.
-pub const HOME_JOINTS_RAD: [f64; 7] = [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0];
 
 /// One child process.
 #[derive(Debug)]
@@ -114,6 +107,8 @@ pub struct Cell {
     /// The simulated robot's own address (`None` on hardware: `fri.robot_addr`).
     fri_robot_addr: Option<String>,
     fri_cycle_s: f64,
+    /// Where the simulated arm starts (`robot.park_joints_rad`).
+    park_joints_rad: [f64; 7],
     can_interface: String,
     operator: Option<Operator>,
     next_trial_id: u64,
@@ -313,6 +308,7 @@ impl Cell {
             fri_addr,
             fri_robot_addr,
             fri_cycle_s: config.fri.cycle_s,
+            park_joints_rad: config.robot.park_joints_rad,
             can_interface,
             operator: None,
             next_trial_id: 0,
@@ -381,12 +377,7 @@ impl Cell {
         // The robot simulator last: it drops to monitor mode when its measurements go
         // unanswered, so the executor's FRI driver must already listen.
         if self.options.simulated_devices {
-            let home: Vec<String> = self
-                .options
-                .home_joints_rad
-                .iter()
-                .map(|q| q.to_string())
-                .collect();
+            let home: Vec<String> = self.park_joints_rad.iter().map(|q| q.to_string()).collect();
             // Through the relay, the robot sends to it and binds any port.
             let (sends_to, binds) = match &self.links {
                 Some(links) => (

@@ -420,7 +420,7 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
     let fits_sub = stage.subscriber::<Fits>()?;
     let joints_sub = stage.subscriber::<JointStates>()?;
     let requests = stage.subscriber::<TrialRequest>()?;
-    let mut arm_now: ArmJoints = super::harness::HOME_JOINTS_RAD;
+    let mut arm_now: ArmJoints = config.robot.park_joints_rad;
     notify::ready("plan waiting for fits");
     let mut watchdog = Watchdog::from_env();
     let mut pending: ByTrial<Fits> = ByTrial::default();
@@ -544,7 +544,7 @@ mod tests {
         .unwrap();
         let check = SafetyCheck::new(Arc::clone(&robot), SafetyLimits::from_cell(&config, &robot));
         let motions = ExecutorConfig::from_cell(&config);
-        let home = super::super::harness::HOME_JOINTS_RAD;
+        let home = config.robot.park_joints_rad;
         let mut grasp = top_grasp([0.6, 0.1, 0.2]);
         // The planner's solution on the branch with A1 turned by half a turn.
         let far = robot
@@ -594,7 +594,7 @@ mod tests {
         let config = CellConfig::load(Path::new(crate::config::DEFAULT_CONFIG_PATH)).unwrap();
         let check = SafetyCheck::new(Arc::clone(&robot), SafetyLimits::from_cell(&config, &robot));
         let motions = ExecutorConfig::from_cell(&config);
-        let home = super::super::harness::HOME_JOINTS_RAD;
+        let home = config.robot.park_joints_rad;
         let in_table = top_grasp([0.6, 0.1, 0.01]);
         let start = top_grasp([0.6, 0.1, 0.2]);
         let refused_alone =

@@ -2,7 +2,6 @@
 
 use super::emit;
 use crate::category::CategoryDb;
-use crate::cell::harness::HOME_JOINTS_RAD;
 use crate::cell::plan::TrialPlan;
 use crate::cloud::io::read_cloud;
 use crate::config::CellConfig;
@@ -548,7 +547,7 @@ fn write_plan(
         Some(text) => parse_numbers(text, 7, "--from-joints")?
             .try_into()
             .expect("seven numbers"),
-        None => HOME_JOINTS_RAD,
+        None => cell.robot.park_joints_rad,
     };
     let check = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(cell, robot));
     let grasp = plan

@@ -867,7 +867,7 @@ impl<'a> NovelRun<'a> {
                 &cell.robot,
                 &self.safety,
                 &self.motions,
-                &crate::cell::harness::HOME_JOINTS_RAD,
+                &self.cell.config.robot.park_joints_rad,
             )
         }))
     }

@@ -5,7 +5,7 @@ use super::arm::Arm;
 use super::motions::{advanced, approach_speed_m_s, lifted, validate_grasp, GraspMotions};
 use super::path::{straight_line, PathTolerance, StraightPath};
 use super::report::{
-    ApproachReport, ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport,
+    ApproachReport, ExecutionReport, MotionReport, Outcome, ParkReport, PhaseReport, StopReport,
 };
 use super::request::ExecutionRequest;
 use super::safety::{SafeArm, SafeArmError, SafetyLimits};
@@ -18,6 +18,7 @@ use crate::hw::fri::{ForceGuard, FriError, FriState, FriStatus};
 use crate::hw::hand::{Hand, HandPositions, Puck};
 use crate::robot::kinematics::ArmJoints;
 use crate::robot::{HandPose, Robot};
+use nalgebra::Translation3;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -109,7 +110,25 @@ pub struct Executor<A, B> {
     hand_touched: bool,
     /// The hand has been brought up.
     hand_ready: bool,
+    /// What the last grasp left to release, while it may be released.
+    leftover: Option<Leftover>,
 }
+
+/// What a grasp leaves behind for [`Executor::release_and_park`]: where it came
+/// from and, once lifted, where the object was lifted from.
+#[derive(Debug, Clone)]
+struct Leftover {
+    /// The palm at the pre-grasp, where the approach began.
+    pregrasp: crate::geometry::Pose,
+    /// The hand's shape while approaching.
+    preshape: HandPositions,
+    /// The arm where the lift began.
+    lifted_from: Option<ArmJoints>,
+}
+
+/// How far above where the lift began the object is put down (m), in the order
+/// tried: the first height the safety layer accepts.
+const PUT_DOWN_ABOVE_M: [f64; 4] = [0.01, 0.02, 0.04, 0.07];
 
 fn secs(d: Duration) -> f64 {
     d.as_secs_f64()
@@ -134,6 +153,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             config,
             hand_touched: false,
             hand_ready: false,
+            leftover: None,
         }
     }
 
@@ -201,10 +221,19 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
     ) -> ExecutionReport {
         let began = self.clock.now();
         let mut report = ExecutionReport::new();
+        self.leftover = None;
         let result = self.run(request, &mut report, began, observer);
         match result {
             Ok(()) => report.outcome = Outcome::Success,
             Err(error) => {
+                // A grasp that did not hold may be released; after a device fault or
+                // a refusal nothing is (the operator's decision).
+                if !matches!(
+                    error,
+                    ExecuteError::NoContact { .. } | ExecuteError::GraspLost { .. }
+                ) {
+                    self.leftover = None;
+                }
                 tracing::error!(kind = error.kind(), "grasp failed: {error}");
                 report.failed_phase = Some(error.phase());
                 report.error_kind = Some(error.kind());
@@ -222,6 +251,142 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         }
         report.total_s = secs(self.clock.now().saturating_sub(began));
         report
+    }
+
+    /// After a grasp that held, or one that did not (no contact, lost): puts the
+    /// object down where it was lifted from, opens the hand to the approach shape,
+    /// backs the palm out along the approach to the pre-grasp and moves the arm to
+    /// `park_rad`, so that the next snapshot sees the table without the arm and the
+    /// next plan starts from the same joints as every other. `Ok(None)` when there
+    /// is nothing to release (no grasp yet, a refused plan, or a device fault: then
+    /// the arm and hand stay as they are, for the operator). A failure stops both
+    /// devices where they are.
+    pub fn release_and_park(
+        &mut self,
+        park_rad: &ArmJoints,
+    ) -> Result<Option<ParkReport>, ExecuteError> {
+        let Some(left) = self.leftover.take() else {
+            return Ok(None);
+        };
+        let began = self.clock.now();
+        let result = self.park(&left, park_rad);
+        if result.is_err() {
+            self.stop_all();
+        }
+        let mut report = result?;
+        report.total_s = secs(self.clock.now().saturating_sub(began));
+        Ok(Some(report))
+    }
+
+    fn park(&mut self, left: &Leftover, park_rad: &ArmJoints) -> Result<ParkReport, ExecuteError> {
+        const PHASE: Phase = Phase::Park;
+        self.wait_arm_ready()?;
+        let mut report = ParkReport::default();
+        if let Some(from) = left.lifted_from {
+            // Down to just above where the lift began: the closed fingers reach
+            // under the object, and the safety layer keeps them off the table.
+            let lift_start = self.robot.arm().palm(&from);
+            let [first, fallbacks @ ..] =
+                PUT_DOWN_ABOVE_M.map(|h| Translation3::new(0.0, 0.0, h) * lift_start);
+            report.put_down = match self.first_line_accepted("put down", &first, &fallbacks) {
+                Ok(motion) => Some(motion),
+                // Refused before anything moved: released where it is held.
+                Err(e @ (ExecuteError::Path { .. } | ExecuteError::Unsafe { .. })) => {
+                    tracing::warn!("the object is released where it is held: {e}");
+                    None
+                }
+                Err(e) => return Err(e),
+            };
+        }
+        if self.hand_ready {
+            let timeout = self.call_timeout();
+            self.hand
+                .move_to(&left.preshape, timeout)
+                .map_err(Self::hand_error(PHASE))?;
+            self.check_arm(PHASE)?;
+            let positions = self
+                .hand
+                .positions(timeout)
+                .map_err(Self::hand_error(PHASE))?;
+            self.arm.set_hand(hand_pose(&positions));
+        }
+        // Out of the object's way: back along the approach to the pre-grasp, or
+        // else straight up by as much.
+        let palm = self.robot.arm().palm(&self.commanded());
+        let up = (left.pregrasp.translation.vector - palm.translation.vector).norm();
+        let straight_up = Translation3::new(0.0, 0.0, up) * palm;
+        report.retreat =
+            Some(self.first_line_accepted("retreat", &left.pregrasp, &[straight_up])?);
+        let start = self.commanded();
+        let park_palm = self.robot.arm().palm(park_rad);
+        let hand = self.arm.hand();
+        let (_, waypoints, path) = super::motions::free_move(
+            self.arm.safety(),
+            &self.config,
+            (PHASE, "park"),
+            &start,
+            (park_rad, &park_palm),
+            &hand,
+        )?;
+        report.park = Some(self.move_along(PHASE, "park", &waypoints, path.as_ref())?);
+        Ok(report)
+    }
+
+    /// Moves the palm along the first straight line, from where it is to `target`
+    /// or else to one of `fallbacks`, that the safety layer accepts with the hand
+    /// as it is. When it accepts none, nothing moves and the line to `target` is
+    /// the error.
+    fn first_line_accepted(
+        &mut self,
+        motion: &'static str,
+        target: &crate::geometry::Pose,
+        fallbacks: &[crate::geometry::Pose],
+    ) -> Result<MotionReport, ExecuteError> {
+        let refusal = match self.checked_line(motion, target) {
+            Ok(path) => return self.move_along(Phase::Park, motion, &path.waypoints, Some(&path)),
+            Err(e) => e,
+        };
+        for target in fallbacks {
+            match self.checked_line(motion, target) {
+                Ok(path) => {
+                    return self.move_along(Phase::Park, motion, &path.waypoints, Some(&path))
+                }
+                Err(e) => tracing::debug!("{motion} refused: {e}"),
+            }
+        }
+        Err(refusal)
+    }
+
+    /// The palm's straight line from where the arm is to `target`, accepted by the
+    /// safety layer with the hand as it is.
+    fn checked_line(
+        &self,
+        motion: &'static str,
+        target: &crate::geometry::Pose,
+    ) -> Result<StraightPath, ExecuteError> {
+        const PHASE: Phase = Phase::Park;
+        let path = straight_line(
+            &self.robot,
+            &self.commanded(),
+            target,
+            None,
+            &self.config.path,
+        )
+        .map_err(|source| ExecuteError::Path {
+            phase: PHASE,
+            motion,
+            source,
+        })?;
+        super::motions::checked_motion(
+            self.arm.safety(),
+            self.config.palm_speed_m_s,
+            PHASE,
+            motion,
+            &path.waypoints,
+            Some(&path),
+            &self.arm.hand(),
+        )?;
+        Ok(path)
     }
 
     fn call_timeout(&self) -> Duration {
@@ -273,6 +438,14 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
                 ex.bring_up_hand()
             })?;
         }
+        self.leftover = Some(Leftover {
+            pregrasp: plan.request.pregrasp,
+            preshape: HandPositions {
+                fingers_rad: plan.preshape.flex_rad,
+                spread_rad: plan.preshape.spread_rad,
+            },
+            lifted_from: None,
+        });
         self.phase(Phase::Preshape, report, began, observer, |ex, report| {
             ex.preshape(&plan, report)
         })?;
@@ -297,6 +470,9 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         })?;
         self.phase(Phase::Lift, report, began, observer, |ex, report| {
             let start = ex.commanded();
+            if let Some(left) = &mut ex.leftover {
+                left.lifted_from = Some(start);
+            }
             let target = lifted(&ex.config, &ex.robot.arm().palm(&start));
             let path = straight_line(&ex.robot, &start, &target, None, &ex.config.path).map_err(
                 |source| ExecuteError::Path {
@@ -692,7 +868,7 @@ mod tests {
     use std::f64::consts::PI;
 
     /// Where the simulated arm starts: palm about 0.48 m over the table, facing down.
-    const HOME: ArmJoints = [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0];
+    const HOME: ArmJoints = crate::config::DEFAULT_PARK_JOINTS_RAD;
     const CONTACT_RAD: [f64; 3] = [1.0, 1.1, 1.2];
 
     fn cell() -> CellConfig {
@@ -933,6 +1109,9 @@ mod tests {
         let stop = report.stop.as_ref().unwrap();
         assert!(stop.arm.contains("KRC holds"), "{stop:?}");
         assert!(stop.hand.starts_with("holding"), "{stop:?}");
+        // After a device fault nothing is released: that is the operator's call.
+        assert!(ex.release_and_park(&HOME).unwrap().is_none());
+        assert_eq!(arm.with_sim(|s| s.joints_rad()), stopped);
     }
 
     #[test]
@@ -1020,7 +1199,8 @@ mod tests {
         let mut req = request(&rig.robot);
         req.pregrasp_joints_rad[5] = -2.2;
         req.pregrasp = PoseJson::from(&rig.robot.arm().palm(&req.pregrasp_joints_rad));
-        let report = rig.executor(&rig.arm).execute(&req);
+        let mut ex = rig.executor(&rig.arm);
+        let report = ex.execute(&req);
         assert_eq!(phases(&report), [Phase::ArmReady, Phase::Validate]);
         let err = report.error.as_ref().unwrap();
         assert!(
@@ -1046,10 +1226,52 @@ mod tests {
         assert_eq!(joint, "lbr_a5");
         assert_eq!(*position_rad, -2.2);
         assert!((limit_rad + 2.084395).abs() < 1e-12);
+        // Nothing to release: nothing moves after the refusal either.
+        assert!(ex.release_and_park(&HOME).unwrap().is_none());
+        drop(ex);
         let q = rig.sim_joints();
         assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-6), "{q:?}");
         let emulator = rig._emulator.stop().unwrap().0;
         assert_eq!(emulator.stats().received, 0, "the hand was never addressed");
+    }
+
+    /// After a grasp that held: the object goes down just above where the lift
+    /// began, the hand opens to its approach shape, the palm backs out to the
+    /// pre-grasp and the arm parks; once parked, there is nothing left to release.
+    #[test]
+    fn a_held_object_is_put_down_released_and_the_arm_parks() {
+        let rig = Rig::grasping();
+        let req = request(&rig.robot);
+        let mut ex = rig.executor(&rig.arm);
+        let report = ex.execute(&req);
+        assert_eq!(report.outcome, Outcome::Success, "{}", report.human());
+        let park = ex.release_and_park(&HOME).unwrap().unwrap();
+        assert!(park.put_down.is_some() && park.retreat.is_some() && park.park.is_some());
+        assert!(park.total_s > 0.0, "{park:?}");
+        let hand = ex.hand().positions(Duration::from_secs(1)).unwrap();
+        for finger_rad in hand.fingers_rad {
+            assert!(finger_rad.abs() < 1e-3, "opened: {hand:?}");
+        }
+        assert!(ex.release_and_park(&HOME).unwrap().is_none());
+        drop(ex);
+        let q = rig.sim_joints();
+        assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-3), "{q:?}");
+    }
+
+    /// A grasp that closed on air is released and parked like one that held.
+    #[test]
+    fn a_grasp_without_contact_is_released_and_parked() {
+        let rig = Rig::new(HandEmulatorConfig::default());
+        let req = request(&rig.robot);
+        let mut ex = rig.executor(&rig.arm);
+        let report = ex.execute(&req);
+        assert_eq!(report.error_kind, Some("no_contact"));
+        let park = ex.release_and_park(&HOME).unwrap().unwrap();
+        assert!(park.put_down.is_none(), "never lifted: {park:?}");
+        assert!(park.retreat.is_some() && park.park.is_some());
+        drop(ex);
+        let q = rig.sim_joints();
+        assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-3), "{q:?}");
     }
 
     #[test]

@@ -31,6 +31,11 @@
 //! 9. [`Phase::Hold`]: for [`ExecutorConfig::hold_s`], poll the strain gauges and
 //!    finger positions; a finger losing its strain or slipping is
 //!    [`ExecuteError::GraspLost`]. Then the [`ExecutionReport`].
+//! 10. [`Phase::Park`] ([`Executor::release_and_park`], called by the cell after
+//!     the grasp is reported): put the object down where the lift began, open the
+//!     hand to the approach shape, back out along the approach to the pre-grasp and
+//!     move to the park joints (`robot.park_joints_rad`), so that every snapshot sees
+//!     the table without the arm and every plan starts from the same joints.
 //!
 //! # Watchdog and stop
 //! Every phase has a deadline on the injected [`Clock`](crate::clock::Clock); arm motions get their
@@ -54,8 +59,10 @@
 //!   its torque limit, so a grasped object stays gripped. An unreachable puck makes
 //!   the stop report its error; the others still hold.
 //!
-//! Nothing is released on a failure: opening the hand or moving the arm away is the
-//! operator's next decision, not the executor's.
+//! Nothing is released after a device fault, a refusal or a missed deadline: opening
+//! the hand or moving the arm away is then the operator's next decision, not the
+//! executor's. Only a grasp that closed without contact or lost its object is
+//! released and parked like a successful one.
 
 pub mod arm;
 pub mod executor;
@@ -72,7 +79,9 @@ pub use arm::Arm;
 pub use executor::{Executor, ExecutorConfig};
 pub use motions::{pregrasp_line_end, validate_grasp, GraspMotions};
 pub use path::{PathError, PathMethod, PathTolerance, StraightPath};
-pub use report::{ApproachReport, ExecutionReport, MotionReport, Outcome, PhaseReport, StopReport};
+pub use report::{
+    ApproachReport, ExecutionReport, MotionReport, Outcome, ParkReport, PhaseReport, StopReport,
+};
 pub use request::{ExecutionRequest, RequestError, ValidRequest};
 pub use safety::{SafeArm, SafeArmError, SafetyCheck, SafetyError, SafetyLimits};
 
@@ -103,6 +112,8 @@ pub enum Phase {
     Lift,
     /// Holding it, checking the grasp.
     Hold,
+    /// After the grasp: putting the object down, opening, backing out, parking.
+    Park,
 }
 
 impl std::fmt::Display for Phase {
@@ -117,6 +128,7 @@ impl std::fmt::Display for Phase {
             Phase::Close => "close",
             Phase::Lift => "lift",
             Phase::Hold => "hold",
+            Phase::Park => "park",
         })
     }
 }

@@ -245,15 +245,36 @@ pub fn pregrasp_move(
     current: &ArmJoints,
     hand: &HandPose,
 ) -> Result<(MotionReport, Vec<ArmJoints>, Option<StraightPath>), ExecuteError> {
-    const PHASE: Phase = Phase::Validate;
-    const NAME: &str = "pregrasp move";
-    let target = request.pregrasp_joints_rad;
+    free_move(
+        check,
+        config,
+        (Phase::Validate, "pregrasp move"),
+        current,
+        (&request.pregrasp_joints_rad, &request.pregrasp),
+        hand,
+    )
+}
+
+/// The checked move through free space from `current` to the joints `target` (the
+/// palm at its pose): as [`pregrasp_move`], one joint-space segment, or else the
+/// palm's straight line ending on the target joints. `motion` names the phase and
+/// the move in errors.
+pub fn free_move(
+    check: &SafetyCheck,
+    config: &ExecutorConfig,
+    motion: (Phase, &'static str),
+    current: &ArmJoints,
+    target: (&ArmJoints, &Pose),
+    hand: &HandPose,
+) -> Result<(MotionReport, Vec<ArmJoints>, Option<StraightPath>), ExecuteError> {
+    let (phase, name) = motion;
+    let (target, target_pose) = (*target.0, target.1);
     let direct = [*current, target];
     let refusal = match checked_motion(
         check,
         config.palm_speed_m_s,
-        PHASE,
-        NAME,
+        phase,
+        name,
         &direct,
         None,
         hand,
@@ -265,7 +286,7 @@ pub fn pregrasp_move(
     let Ok(mut path) = straight_line(
         check.robot(),
         current,
-        &request.pregrasp,
+        target_pose,
         Some(&target),
         &tolerance,
     ) else {
@@ -284,15 +305,15 @@ pub fn pregrasp_move(
     match checked_motion(
         check,
         config.palm_speed_m_s,
-        PHASE,
-        NAME,
+        phase,
+        name,
         &path.waypoints,
         Some(&path),
         hand,
     ) {
         Ok(report) => Ok((report, path.waypoints.clone(), Some(path))),
         Err(e) => {
-            tracing::debug!("pregrasp move along the palm line refused too: {e}");
+            tracing::debug!("{name} along the palm line refused too: {e}");
             Err(refusal)
         }
     }

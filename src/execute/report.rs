@@ -70,6 +70,19 @@ pub struct StopReport {
     pub hand: String,
 }
 
+/// What releasing and parking after a grasp did ([`super::Executor::release_and_park`]).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ParkReport {
+    /// Down to where the lift began, with the object.
+    pub put_down: Option<MotionReport>,
+    /// Back along the approach to the pre-grasp, the hand open.
+    pub retreat: Option<MotionReport>,
+    /// To the park joints.
+    pub park: Option<MotionReport>,
+    /// The whole release and park (s, executor's clock).
+    pub total_s: f64,
+}
+
 /// The executor's account of one grasp.
 #[derive(Debug, Serialize)]
 pub struct ExecutionReport {

@@ -1,6 +1,5 @@
 //! `cell bench plan`: grasp planning time per kernel, with reachability.
 
-use crate::cell::harness::HOME_JOINTS_RAD;
 use crate::cell::plan::executable_joints;
 use crate::cli::emit;
 use crate::cli::plan::load_db;
@@ -227,8 +226,14 @@ fn sim_bench(
         total.push(t + rt);
         let mut grasp = refined.grasp.clone();
         let start = Instant::now();
-        let executable =
-            executable_joints(robot, &safety, &motions, &mut grasp, &HOME_JOINTS_RAD).is_ok();
+        let executable = executable_joints(
+            robot,
+            &safety,
+            &motions,
+            &mut grasp,
+            &cell.robot.park_joints_rad,
+        )
+        .is_ok();
         executable_ms.push(start.elapsed().as_secs_f64() * 1e3);
         planned.push((out.plan.grasp, grasp, executable));
         before.push(refined.start_mean_epsilon);
