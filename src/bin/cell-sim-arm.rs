@@ -187,6 +187,12 @@ fn audit_commands(
     robot: &graspcell::robot::Robot,
     cell: &graspcell::config::CellConfig,
 ) -> anyhow::Result<()> {
+    // It shares the simulator's lock with the robot's real-time cycle: ordinary
+    // work must not preempt it while it holds the lock.
+    graspcell::hw::realtime::request_priority(
+        "FRI sim auditor",
+        graspcell::hw::realtime::CONTROL_PRIORITY,
+    );
     let lock = || sim.lock().unwrap_or_else(|e| e.into_inner());
     let dt_s = lock().config().cycle_s;
     let mut audit = CommandAudit::new(robot, cell, dt_s);

@@ -17,10 +17,14 @@ pub trait ExternalForce: Send {
 /// answers at once with the latest force a worker thread computed from the
 /// latest measured joints, so an expensive model (the simulated world's contact
 /// queries) never delays a measurement or an answer's reception. The force lags
-/// the arm by one evaluation of the model (about a millisecond). For lockstep
-/// tests, plug the model in directly instead.
+/// the arm by one evaluation of the model (about a millisecond). The cycle never
+/// waits for the worker: should the worker (at the lowest priority) hold the
+/// shared state, the cycle keeps the force it last read and hands the joints over
+/// in a later cycle. For lockstep tests, plug the model in directly instead.
 pub struct BackgroundForce {
     shared: std::sync::Arc<std::sync::Mutex<BackgroundState>>,
+    /// The force the cycle last read.
+    last_tcp_ft: [f64; 6],
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
     worker: Option<std::thread::JoinHandle<()>>,
 }
@@ -59,6 +63,7 @@ impl BackgroundForce {
             })?;
         Ok(BackgroundForce {
             shared,
+            last_tcp_ft: [0.0; 6],
             stop,
             worker: Some(worker),
         })
@@ -67,9 +72,16 @@ impl BackgroundForce {
 
 impl ExternalForce for BackgroundForce {
     fn tcp_ft(&mut self, measured_rad: &[f64; JOINTS]) -> [f64; 6] {
-        let mut state = self.shared.lock().unwrap_or_else(|e| e.into_inner());
-        state.joints = Some(*measured_rad);
-        state.tcp_ft
+        let state = match self.shared.try_lock() {
+            Ok(state) => Some(state),
+            Err(std::sync::TryLockError::Poisoned(e)) => Some(e.into_inner()),
+            Err(std::sync::TryLockError::WouldBlock) => None,
+        };
+        if let Some(mut state) = state {
+            state.joints = Some(*measured_rad);
+            self.last_tcp_ft = state.tcp_ft;
+        }
+        self.last_tcp_ft
     }
 }
 
@@ -88,5 +100,43 @@ pub(super) struct ForceModel(pub(super) Option<Box<dyn ExternalForce>>);
 impl fmt::Debug for ForceModel {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(if self.0.is_some() { "Some(..)" } else { "None" })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Instant;
+
+    struct Constant;
+
+    impl ExternalForce for Constant {
+        fn tcp_ft(&mut self, _: &[f64; JOINTS]) -> [f64; 6] {
+            [1.0, 2.0, 3.0, 0.0, 0.0, 0.0]
+        }
+    }
+
+    #[test]
+    fn the_cycle_never_waits_for_the_worker() {
+        let mut force = BackgroundForce::new(Box::new(Constant), Duration::from_millis(1)).unwrap();
+        let q = [0.0; JOINTS];
+        let want = [1.0, 2.0, 3.0, 0.0, 0.0, 0.0];
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while force.tcp_ft(&q) != want {
+            assert!(Instant::now() < deadline, "the worker never computed");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        // The shared state held (as by the worker, preempted inside it): the
+        // cycle answers at once with the force it last read.
+        let shared = std::sync::Arc::clone(&force.shared);
+        let held = shared.lock().unwrap();
+        let (send, answer) = std::sync::mpsc::channel();
+        let cycle = std::thread::spawn(move || {
+            send.send(force.tcp_ft(&q)).unwrap();
+            force
+        });
+        assert_eq!(answer.recv_timeout(Duration::from_secs(5)), Ok(want));
+        drop(held);
+        drop(cycle.join().unwrap());
     }
 }
