@@ -299,16 +299,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             };
         }
         if self.hand_ready {
-            let timeout = self.call_timeout();
-            self.hand
-                .move_to(&left.preshape, timeout)
-                .map_err(Self::hand_error(PHASE))?;
-            self.check_arm(PHASE)?;
-            let positions = self
-                .hand
-                .positions(timeout)
-                .map_err(Self::hand_error(PHASE))?;
-            self.arm.set_hand(hand_pose(&positions));
+            self.shape_hand(PHASE, &left.preshape)?;
         }
         // Out of the object's way: back along the approach to the pre-grasp, or
         // else straight up by as much.
@@ -440,10 +431,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         }
         self.leftover = Some(Leftover {
             pregrasp: plan.request.pregrasp,
-            preshape: HandPositions {
-                fingers_rad: plan.preshape.flex_rad,
-                spread_rad: plan.preshape.spread_rad,
-            },
+            preshape: preshape_positions(&plan),
             lifted_from: None,
         });
         self.phase(Phase::Preshape, report, began, observer, |ex, report| {
@@ -697,23 +685,31 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
     ) -> Result<(), ExecuteError> {
         const PHASE: Phase = Phase::Preshape;
         let timeout = self.call_timeout();
-        let target = HandPositions {
-            fingers_rad: plan.preshape.flex_rad,
-            spread_rad: plan.preshape.spread_rad,
-        };
-        self.hand
-            .move_to(&target, timeout)
-            .map_err(Self::hand_error(PHASE))?;
-        self.check_arm(PHASE)?;
-        let positions = self
-            .hand
-            .positions(timeout)
-            .map_err(Self::hand_error(PHASE))?;
-        self.arm.set_hand(hand_pose(&positions));
+        let positions = self.shape_hand(PHASE, &preshape_positions(plan))?;
         report.hand_positions = Some(positions);
         report.strain_baseline = Some(self.hand.strain(timeout).map_err(Self::hand_error(PHASE))?);
         self.check_arm(PHASE)?;
         Ok(())
+    }
+
+    /// Moves the fingers and spread to `target`; the safety layer's hand becomes
+    /// the measured one, which is returned.
+    fn shape_hand(
+        &mut self,
+        phase: Phase,
+        target: &HandPositions,
+    ) -> Result<HandPositions, ExecuteError> {
+        let timeout = self.call_timeout();
+        self.hand
+            .move_to(target, timeout)
+            .map_err(Self::hand_error(phase))?;
+        self.check_arm(phase)?;
+        let positions = self
+            .hand
+            .positions(timeout)
+            .map_err(Self::hand_error(phase))?;
+        self.arm.set_hand(hand_pose(&positions));
+        Ok(positions)
     }
 
     /// Closes the hand; returns the fingers in contact with their positions (rad).
@@ -838,6 +834,14 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             )
         };
         StopReport { arm, hand }
+    }
+}
+
+/// The hand's joints of `plan`'s approach shape.
+fn preshape_positions(plan: &GraspMotions) -> HandPositions {
+    HandPositions {
+        fingers_rad: plan.preshape.flex_rad,
+        spread_rad: plan.preshape.spread_rad,
     }
 }
 
@@ -1003,6 +1007,15 @@ mod tests {
         fn sim_joints(&self) -> ArmJoints {
             self.arm.with_sim(|s| s.joints_rad())
         }
+
+        /// Asserts that the simulated arm is within `tolerance_rad` of `joints`.
+        fn assert_arm_at(&self, joints: &ArmJoints, tolerance_rad: f64) {
+            let q = self.sim_joints();
+            assert!(
+                (0..7).all(|j| (q[j] - joints[j]).abs() < tolerance_rad),
+                "arm at {q:?}, expected {joints:?}"
+            );
+        }
     }
 
     fn phases(report: &ExecutionReport) -> Vec<Phase> {
@@ -1166,8 +1179,7 @@ mod tests {
         assert!(err.to_string().contains("F2 (node 12)"), "{err}");
         assert_eq!(report.error_kind, Some("hand_no_reply"));
         assert!(report.stop.as_ref().unwrap().hand.contains("F2"));
-        let q = rig.sim_joints();
-        assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-6), "{q:?}");
+        rig.assert_arm_at(&HOME, 1e-6);
     }
 
     #[test]
@@ -1229,8 +1241,7 @@ mod tests {
         // Nothing to release: nothing moves after the refusal either.
         assert!(ex.release_and_park(&HOME).unwrap().is_none());
         drop(ex);
-        let q = rig.sim_joints();
-        assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-6), "{q:?}");
+        rig.assert_arm_at(&HOME, 1e-6);
         let emulator = rig._emulator.stop().unwrap().0;
         assert_eq!(emulator.stats().received, 0, "the hand was never addressed");
     }
@@ -1254,8 +1265,7 @@ mod tests {
         }
         assert!(ex.release_and_park(&HOME).unwrap().is_none());
         drop(ex);
-        let q = rig.sim_joints();
-        assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-3), "{q:?}");
+        rig.assert_arm_at(&HOME, 1e-3);
     }
 
     /// A grasp that closed on air is released and parked like one that held.
@@ -1270,8 +1280,7 @@ mod tests {
         assert!(park.put_down.is_none(), "never lifted: {park:?}");
         assert!(park.retreat.is_some() && park.park.is_some());
         drop(ex);
-        let q = rig.sim_joints();
-        assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-3), "{q:?}");
+        rig.assert_arm_at(&HOME, 1e-3);
     }
 
     #[test]
@@ -1298,8 +1307,7 @@ mod tests {
             assert_eq!(err.kind(), "bad_request", "{field}: {err}");
             assert!(err.to_string().contains(field), "{field}: {err}");
             assert_ne!(report.outcome, Outcome::Success);
-            let q = rig.sim_joints();
-            assert!((0..7).all(|j| (q[j] - HOME[j]).abs() < 1e-6), "{q:?}");
+            rig.assert_arm_at(&HOME, 1e-6);
             let emulator = rig._emulator.stop().unwrap().0;
             assert_eq!(emulator.stats().received, 0, "the hand was never addressed");
         }
