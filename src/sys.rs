@@ -229,39 +229,9 @@ pub fn recv_packet(
     Ok(n)
 }
 
-/// Tells glibc's allocator to keep freed memory in the process: no trimming of
-/// the heap's top, and large blocks from the heap instead of their own mappings.
-/// Memory a real-time process frees then stays resident for its next use instead
-/// of being returned to the kernel (and, in a VM with free page reporting, to the
-/// host) and faulted in again. `false` where the allocator refused or is not
-/// glibc's.
-pub fn keep_freed_memory() -> bool {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    {
-        // SAFETY: mallopt only changes the allocator's tunables; it takes plain
-        // integers and has no memory-safety preconditions.
-        unsafe {
-            libc::mallopt(libc::M_TRIM_THRESHOLD, -1) == 1
-                && libc::mallopt(libc::M_MMAP_MAX, 0) == 1
-        }
-    }
-    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
-    {
-        false
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn glibc_keeps_freed_memory_when_asked() {
-        assert_eq!(
-            keep_freed_memory(),
-            cfg!(all(target_os = "linux", target_env = "gnu"))
-        );
-    }
 
     #[test]
     fn a_contained_panic_is_an_error_with_its_message() {

@@ -86,7 +86,6 @@ fn main() -> ExitCode {
 }
 
 fn run(args: Args) -> anyhow::Result<()> {
-    graspcell::hw::realtime::keep_freed_memory("cell-sim-arm");
     let base = match &args.config {
         Some(path) => {
             let cell = graspcell::config::CellConfig::load(path)?;

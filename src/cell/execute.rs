@@ -142,7 +142,6 @@ pub fn run(
     // Before any device thread starts (they inherit it): the control thread must not
     // be preempted by ordinary work while it holds the FRI driver's lock.
     crate::hw::realtime::request_priority("executor", crate::hw::realtime::CONTROL_PRIORITY);
-    crate::hw::realtime::keep_freed_memory("executor");
     let robot = Arc::new(Robot::load(config)?);
     let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
     let mut fri = config.fri.clone();

@@ -219,8 +219,8 @@ fn best_fit(fits: Option<&Fits>) -> Option<Pose> {
         .and_then(|f| f.base_from_model.to_pose("fit").ok())
 }
 
-/// How long without a result before the slow bookkeeping runs with no trial
-/// executing ([`Logger::may_do_bookkeeping`]).
+/// How long without a result, and with no trial in flight, before the slow
+/// bookkeeping runs ([`Logger::may_do_bookkeeping`]).
 const QUIET: Duration = Duration::from_secs(1);
 
 /// [`Logger::may_do_bookkeeping`] for the trials followed, `since_result` after
@@ -228,7 +228,7 @@ const QUIET: Duration = Duration::from_secs(1);
 fn bookkeeping_may_run(trials: &BTreeMap<u64, Trial>, since_result: Duration) -> bool {
     let planning = trials.values().any(|t| t.plan.is_none() && t.end.is_none());
     let executing = trials.values().any(|t| t.plan.is_some() && t.end.is_none());
-    !planning && (executing || since_result > QUIET)
+    !planning && !executing && since_result > QUIET
 }
 
 /// The log stage's state: the trials being followed and what grades them.
@@ -435,9 +435,9 @@ impl Logger {
 
     /// Whether the slow bookkeeping (snapshot files, pictures) may run now: never
     /// while a followed trial waits for its camera, perception or plan (it would
-    /// take a core from them), and not just after a result, when the next request
-    /// may be on its way; but while a trial executes, or after [`QUIET`] without a
-    /// result.
+    /// take a core from them) or executes (the arm's real-time link runs beside
+    /// it), and not just after a result, when the next request may be on its way;
+    /// only after [`QUIET`] without a result and with no trial in flight.
     fn may_do_bookkeeping(&self) -> bool {
         bookkeeping_may_run(&self.followed.trials, self.last_result.elapsed())
     }
@@ -1035,8 +1035,8 @@ mod tests {
     }
 
     /// Snapshot files and pictures wait while a trial is between its request and
-    /// its plan, and just after a result (the next request is on its way); they
-    /// are written while a trial executes or once the cell is quiet.
+    /// its end, and just after a result (the next request is on its way); they
+    /// are written once the cell is quiet.
     #[test]
     fn bookkeeping_waits_for_perception_and_planning() {
         let request = TrialRequest::new(5, 0, "mug", "side", "laplace-sim").unwrap();
@@ -1049,7 +1049,7 @@ mod tests {
         trials.insert(5, Trial::new(request, started));
         assert!(!bookkeeping_may_run(&trials, quiet), "perceiving");
         trials.get_mut(&5).unwrap().plan = Some(GraspPlan::default());
-        assert!(bookkeeping_may_run(&trials, just), "executing");
+        assert!(!bookkeeping_may_run(&trials, quiet), "executing");
         trials.insert(6, Trial::new(request, started));
         assert!(
             !bookkeeping_may_run(&trials, quiet),

@@ -37,18 +37,6 @@ pub fn lower_thread_priority() {
     }
 }
 
-/// For a process with a device cycle (`what`): freed memory stays in the process
-/// ([`crate::sys::keep_freed_memory`]), so that its heavy steps (a plan's
-/// validation) reuse resident pages instead of faulting fresh ones in while the
-/// cycle runs. Call once at start; logs the outcome.
-pub fn keep_freed_memory(what: &str) {
-    if crate::sys::keep_freed_memory() {
-        tracing::debug!("{what}: freed memory stays in the process");
-    } else {
-        tracing::info!("{what}: the allocator returns freed memory to the system");
-    }
-}
-
 /// Asks for [`DEVICE_CYCLE_PRIORITY`] for thread `what` ([`request_priority`]).
 pub fn request_device_cycle_priority(what: &str) {
     request_priority(what, DEVICE_CYCLE_PRIORITY);
