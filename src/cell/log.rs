@@ -226,9 +226,8 @@ const QUIET: Duration = Duration::from_secs(1);
 /// [`Logger::may_do_bookkeeping`] for the trials followed, `since_result` after
 /// the last result.
 fn bookkeeping_may_run(trials: &BTreeMap<u64, Trial>, since_result: Duration) -> bool {
-    let planning = trials.values().any(|t| t.plan.is_none() && t.end.is_none());
-    let executing = trials.values().any(|t| t.plan.is_some() && t.end.is_none());
-    !planning && !executing && since_result > QUIET
+    let in_flight = trials.values().any(|t| t.end.is_none());
+    !in_flight && since_result > QUIET
 }
 
 /// The log stage's state: the trials being followed and what grades them.
