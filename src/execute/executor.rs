@@ -5,7 +5,8 @@ use super::arm::Arm;
 use super::motions::{advanced, approach_speed_m_s, lifted, validate_grasp, GraspMotions};
 use super::path::{straight_line, PathTolerance, StraightPath};
 use super::report::{
-    ApproachReport, ExecutionReport, MotionReport, Outcome, ParkReport, PhaseReport, StopReport,
+    ApproachReport, ExecutionReport, MotionReport, Outcome, ParkReport, PhaseReport, RejoinReport,
+    StopReport,
 };
 use super::request::ExecutionRequest;
 use super::safety::{SafeArm, SafeArmError, SafetyLimits};
@@ -35,6 +36,12 @@ pub struct ExecutorConfig {
     pub poll_s: f64,
     /// Longest wait for the robot's command mode (s).
     pub arm_ready_timeout_s: f64,
+    /// Longest wait for the robot to re-enter command mode after it left it while
+    /// the arm stood still before a grasp's first arm motion (hand bring-up,
+    /// pre-shape): nothing was interrupted, so the grasp goes on once the KRL
+    /// program's `friStart` loop has the robot back (s). 0: such a drop fails the
+    /// grasp, as one during a motion always does.
+    pub rejoin_timeout_s: f64,
     /// Timeout of each hand bring-up call: wake, identify, initialise (s).
     pub hand_bringup_timeout_s: f64,
     /// Timeout of every other hand call (s).
@@ -71,6 +78,7 @@ impl Default for ExecutorConfig {
             hold_poll_s: 0.1,
             poll_s: 0.01,
             arm_ready_timeout_s: 10.0,
+            rejoin_timeout_s: 5.0,
             hand_bringup_timeout_s: 30.0,
             hand_call_timeout_s: 10.0,
             motion_timeout_factor: 1.5,
@@ -112,6 +120,11 @@ pub struct Executor<A, B> {
     hand_ready: bool,
     /// What the last grasp left to release, while it may be released.
     leftover: Option<Leftover>,
+    /// The first loss of command mode while the arm stood still before this
+    /// grasp's first motion, for [`Executor::rejoin`].
+    /// What the link check found (the grasp's error if the robot does not
+    /// return).
+    idle_drop: Option<ExecuteError>,
 }
 
 /// What a grasp leaves behind for [`Executor::release_and_park`]: where it came
@@ -154,6 +167,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             hand_touched: false,
             hand_ready: false,
             leftover: None,
+            idle_drop: None,
         }
     }
 
@@ -222,6 +236,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         let began = self.clock.now();
         let mut report = ExecutionReport::new();
         self.leftover = None;
+        self.idle_drop = None;
         let result = self.run(request, &mut report, began, observer);
         match result {
             Ok(()) => report.outcome = Outcome::Success,
@@ -531,20 +546,28 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
     }
 
     fn wait_arm_ready(&mut self) -> Result<FriStatus, ExecuteError> {
+        let (status, waited_s) = self.wait_commanding(self.config.arm_ready_timeout_s);
+        if status.commanding {
+            Ok(status)
+        } else {
+            Err(ExecuteError::ArmNotReady {
+                waited_s,
+                state: status.state,
+                quality: status.quality,
+            })
+        }
+    }
+
+    /// Waits up to `timeout_s` for the driver to command the arm; the last status
+    /// (`commanding` says whether it does) and the time waited (s).
+    fn wait_commanding(&mut self, timeout_s: f64) -> (FriStatus, f64) {
         let start = self.clock.now();
-        let timeout = Duration::from_secs_f64(self.config.arm_ready_timeout_s);
+        let timeout = Duration::from_secs_f64(timeout_s);
         loop {
             let status = self.arm.arm().status();
-            if status.commanding {
-                return Ok(status);
-            }
             let waited = self.clock.now().saturating_sub(start);
-            if waited >= timeout {
-                return Err(ExecuteError::ArmNotReady {
-                    waited_s: secs(waited),
-                    state: status.state,
-                    quality: status.quality,
-                });
+            if status.commanding || waited >= timeout {
+                return (status, secs(waited));
             }
             self.clock
                 .sleep(Duration::from_secs_f64(self.config.poll_s));
@@ -654,6 +677,66 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         }
     }
 
+    /// [`Executor::check_arm`] while the arm stands still before a grasp's first
+    /// arm motion (hand bring-up, pre-shape): there a lost link (a drop to monitor,
+    /// a late measurement) interrupts nothing, so it is noted for
+    /// [`Executor::rejoin`] instead of failing, unless
+    /// [`ExecutorConfig::rejoin_timeout_s`] is 0. In any other phase it is
+    /// [`Executor::check_arm`].
+    fn check_arm_still(&mut self, phase: Phase) -> Result<(), ExecuteError> {
+        let before_motion = matches!(phase, Phase::HandBringup | Phase::Preshape);
+        match self.check_arm(phase) {
+            Err(
+                error @ (ExecuteError::ArmDroppedToMonitor { .. }
+                | ExecuteError::ArmMeasurementLate { .. }),
+            ) if before_motion && self.config.rejoin_timeout_s > 0.0 => {
+                if self.idle_drop.is_none() {
+                    tracing::warn!(
+                        "{error}; the arm stands still, so the grasp waits for command mode \
+                         before the arm moves"
+                    );
+                    self.idle_drop = Some(error);
+                }
+                Ok(())
+            }
+            result => result.map(drop),
+        }
+    }
+
+    /// Before a grasp's first arm motion: if the robot left command mode while the
+    /// arm stood still, waits up to [`ExecutorConfig::rejoin_timeout_s`] for it to
+    /// return (the KRL program's `friStart` loop), records how long that took and
+    /// how far the arm's command moved from `validated_start` meanwhile (the next
+    /// motion starts from where the arm is, through the safety layer), and fails
+    /// with what the link check found if it does not return.
+    fn rejoin(
+        &mut self,
+        validated_start: &ArmJoints,
+        report: &mut ExecutionReport,
+    ) -> Result<(), ExecuteError> {
+        let Some(lost) = self.idle_drop.take() else {
+            return Ok(());
+        };
+        let (status, waited_s) = self.wait_commanding(self.config.rejoin_timeout_s);
+        if !status.commanding {
+            return Err(lost);
+        }
+        let rejoin = RejoinReport {
+            lost_in: lost.phase(),
+            link: lost.to_string(),
+            waited_s,
+            drift_rad: (0..validated_start.len())
+                .map(|j| (status.commanded_rad[j] - validated_start[j]).abs())
+                .fold(0.0, f64::max),
+        };
+        tracing::info!(
+            ?rejoin,
+            "the robot is back in command mode; the grasp goes on"
+        );
+        report.rejoin = Some(rejoin);
+        Ok(())
+    }
+
     fn hand_error(phase: Phase) -> impl Fn(crate::hw::hand::HandError) -> ExecuteError {
         move |source| ExecuteError::Hand { phase, source }
     }
@@ -663,17 +746,17 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         self.hand_touched = true;
         let timeout = Duration::from_secs_f64(self.config.hand_bringup_timeout_s);
         self.hand.wake(timeout).map_err(Self::hand_error(PHASE))?;
-        self.check_arm(PHASE)?;
+        self.check_arm_still(PHASE)?;
         let info = self
             .hand
             .identify(timeout)
             .map_err(Self::hand_error(PHASE))?;
         tracing::info!(?info, "hand identified");
-        self.check_arm(PHASE)?;
+        self.check_arm_still(PHASE)?;
         self.hand
             .initialise(timeout)
             .map_err(Self::hand_error(PHASE))?;
-        self.check_arm(PHASE)?;
+        self.check_arm_still(PHASE)?;
         self.hand_ready = true;
         Ok(())
     }
@@ -688,8 +771,8 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         let positions = self.shape_hand(PHASE, &preshape_positions(plan))?;
         report.hand_positions = Some(positions);
         report.strain_baseline = Some(self.hand.strain(timeout).map_err(Self::hand_error(PHASE))?);
-        self.check_arm(PHASE)?;
-        Ok(())
+        self.check_arm_still(PHASE)?;
+        self.rejoin(&plan.pregrasp_waypoints[0], report)
     }
 
     /// Moves the fingers and spread to `target`; the safety layer's hand becomes
@@ -703,7 +786,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         self.hand
             .move_to(target, timeout)
             .map_err(Self::hand_error(phase))?;
-        self.check_arm(phase)?;
+        self.check_arm_still(phase)?;
         let positions = self
             .hand
             .positions(timeout)
@@ -964,6 +1047,8 @@ mod tests {
             let arm = LockstepArm::new(
                 SimConfig {
                     initial_joints_rad: HOME,
+                    // The cell's KRL program loops around `friStart`.
+                    restart_after_drop: true,
                     ..SimConfig::from_robot(&shipped_robot())
                 },
                 0.1,
@@ -1000,6 +1085,25 @@ mod tests {
                 self.hand.borrow_mut().take().unwrap(),
                 Arc::clone(&self.robot),
                 &cell(),
+                Arc::clone(&self.clock),
+            )
+        }
+
+        /// An executor with the cell's settings changed by `adjust`.
+        fn executor_with<A: Arm>(
+            &self,
+            arm: A,
+            adjust: impl FnOnce(&mut ExecutorConfig),
+        ) -> Executor<A, Box<dyn CanBus>> {
+            let cell = cell();
+            let mut config = ExecutorConfig::from_cell(&cell);
+            adjust(&mut config);
+            Executor::new(
+                arm,
+                self.hand.borrow_mut().take().unwrap(),
+                Arc::clone(&self.robot),
+                SafetyLimits::from_cell(&cell, &self.robot),
+                config,
                 Arc::clone(&self.clock),
             )
         }
@@ -1083,6 +1187,83 @@ mod tests {
         let json = serde_json::to_value(&report).unwrap();
         assert_eq!(json["outcome"], "success");
         assert_eq!(json["phases"].as_array().unwrap().len(), 9);
+    }
+
+    /// Runs a grasp whose answers the driver withholds from the start of phase
+    /// `from` to the start of phase `until` (never resumed if `None`).
+    fn grasp_with_answers_withheld(
+        rig: &Rig,
+        ex: &mut Executor<&LockstepArm, Box<dyn CanBus>>,
+        from: Phase,
+        until: Option<Phase>,
+    ) -> ExecutionReport {
+        let req = request(&rig.robot);
+        let arm = &rig.arm;
+        ex.execute_observed(&req, &mut |p| {
+            if p == from {
+                arm.set_withhold_answers(true);
+            } else if Some(p) == until {
+                arm.set_withhold_answers(false);
+            }
+        })
+    }
+
+    /// Asserts that the grasp failed on a drop to monitor found in `phase`.
+    fn assert_dropped_in(report: &ExecutionReport, phase: Phase) {
+        let err = report.error.as_ref().expect("an error");
+        assert!(
+            matches!(err, ExecuteError::ArmDroppedToMonitor { phase: p, .. } if *p == phase),
+            "{err}"
+        );
+        assert_eq!(report.failed_phase, Some(phase));
+    }
+
+    #[test]
+    fn a_drop_to_monitor_before_the_arm_moves_is_rejoined_and_the_grasp_goes_on() {
+        let rig = Rig::grasping();
+        let mut ex = rig.executor(&rig.arm);
+        let report =
+            grasp_with_answers_withheld(&rig, &mut ex, Phase::HandBringup, Some(Phase::Preshape));
+        assert_eq!(report.outcome, Outcome::Success, "{:?}", report.error);
+        // The robot did drop (the KRL program's loop brought it back) ...
+        assert!(matches!(
+            rig.arm.with_sim(|s| s.drop_reason()),
+            Some(DropReason::LinkQuality { .. })
+        ));
+        // ... and the report says so.
+        let rejoin = report.rejoin.as_ref().expect("a rejoin");
+        assert_eq!(rejoin.lost_in, Phase::HandBringup);
+        assert!(rejoin.link.contains("monitor"), "{rejoin:?}");
+        assert!(rejoin.waited_s < 5.0, "{rejoin:?}");
+        assert!(rejoin.drift_rad < 1e-9, "{rejoin:?}");
+        assert!(report.human().contains("rejoined command mode"));
+    }
+
+    #[test]
+    fn a_drop_to_monitor_before_the_arm_moves_fails_when_the_robot_does_not_return() {
+        let rig = Rig::grasping();
+        let mut ex = rig.executor(&rig.arm);
+        let began = rig.clock.now();
+        let report = grasp_with_answers_withheld(&rig, &mut ex, Phase::Preshape, None);
+        assert_dropped_in(&report, Phase::Preshape);
+        // It waited for the robot for the rejoin timeout, no longer.
+        let waited_s = secs(rig.clock.now().saturating_sub(began));
+        assert!((5.0..10.0).contains(&waited_s), "{waited_s} s");
+        // The arm never moved, and nothing is released after a link fault.
+        rig.assert_arm_at(&HOME, 1e-6);
+        assert!(ex.release_and_park(&HOME).unwrap().is_none());
+        rig.assert_arm_at(&HOME, 1e-6);
+    }
+
+    #[test]
+    fn without_a_rejoin_timeout_a_drop_before_the_arm_moves_fails_the_grasp() {
+        let rig = Rig::grasping();
+        let mut ex = rig.executor_with(&rig.arm, |c| c.rejoin_timeout_s = 0.0);
+        let report =
+            grasp_with_answers_withheld(&rig, &mut ex, Phase::HandBringup, Some(Phase::Preshape));
+        assert_dropped_in(&report, Phase::HandBringup);
+        assert!(report.rejoin.is_none());
+        rig.assert_arm_at(&HOME, 1e-6);
     }
 
     #[test]

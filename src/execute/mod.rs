@@ -45,7 +45,14 @@
 //! it). While the arm moves the executor polls it every [`ExecutorConfig::poll_s`]
 //! and between and during hand calls it checks the arm's link: a drop to monitor
 //! mode, a late measurement, an arm error, a hand error or a missed deadline ends
-//! the run with a named [`ExecuteError`] after stopping both devices:
+//! the run with a named [`ExecuteError`] after stopping both devices. One
+//! exception: before the grasp's first arm motion (hand bring-up, pre-shape) the
+//! arm stands still, so a drop to monitor or a late measurement there interrupts
+//! nothing; the pre-shape ends by waiting up to
+//! [`ExecutorConfig::rejoin_timeout_s`] (default 5 s; 0 turns this off) for the
+//! KRL program's `friStart` loop to bring the robot back, and the grasp goes on
+//! from where the arm is ([`RejoinReport`]). If it does not return, the grasp fails
+//! with the drop as found.
 //!
 //! - **Arm** ([`Arm::stop`], on the FRI driver): a running trajectory decelerates
 //!   within its acceleration limits and the arm then holds that position under
@@ -80,7 +87,8 @@ pub use executor::{Executor, ExecutorConfig};
 pub use motions::{pregrasp_line_end, validate_grasp, GraspMotions};
 pub use path::{PathError, PathMethod, PathTolerance, StraightPath};
 pub use report::{
-    ApproachReport, ExecutionReport, MotionReport, Outcome, ParkReport, PhaseReport, StopReport,
+    ApproachReport, ExecutionReport, MotionReport, Outcome, ParkReport, PhaseReport, RejoinReport,
+    StopReport,
 };
 pub use request::{ExecutionRequest, RequestError, ValidRequest};
 pub use safety::{SafeArm, SafeArmError, SafetyCheck, SafetyError, SafetyLimits};

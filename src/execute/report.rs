@@ -70,6 +70,21 @@ pub struct StopReport {
     pub hand: String,
 }
 
+/// The robot's return to command mode after it left it while the arm stood still
+/// before the grasp's first motion (the grasp went on).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RejoinReport {
+    /// The phase in which the link check found the robot out of command mode.
+    pub lost_in: Phase,
+    /// What it found.
+    pub link: String,
+    /// How long the grasp waited for command mode (s, executor's clock).
+    pub waited_s: f64,
+    /// Largest joint difference between the arm's command after the return and the
+    /// validated start of the pre-grasp move (rad).
+    pub drift_rad: f64,
+}
+
 /// What releasing and parking after a grasp did ([`super::Executor::release_and_park`]).
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct ParkReport {
@@ -97,6 +112,9 @@ pub struct ExecutionReport {
     pub failed_phase: Option<Phase>,
     /// The phases run, in order.
     pub phases: Vec<PhaseReport>,
+    /// The robot's return to command mode before the arm first moved, if it had
+    /// left it.
+    pub rejoin: Option<RejoinReport>,
     /// The move to the pre-grasp joints.
     pub pregrasp_move: Option<MotionReport>,
     /// The approach.
@@ -134,6 +152,7 @@ impl ExecutionReport {
             error: None,
             failed_phase: None,
             phases: Vec::new(),
+            rejoin: None,
             pregrasp_move: None,
             approach: None,
             approach_stop: None,
@@ -168,6 +187,12 @@ impl ExecutionReport {
                 p.started_s,
                 p.started_s + p.duration_s,
                 if p.ok { "ok" } else { "FAILED" }
+            );
+        }
+        if let Some(r) = &self.rejoin {
+            text += &format!(
+                "  rejoined command mode after {:.2} s ({}), arm command moved {:.1e} rad meanwhile\n",
+                r.waited_s, r.link, r.drift_rad
             );
         }
         for (name, motion) in [
