@@ -530,13 +530,14 @@ fn private_config(dir: &Path, cell: &CellConfig) -> PathBuf {
     config
 }
 
-/// `cell execute --json --plan FILE` against in-process simulators (fingers stop at
-/// 1.0, 1.1, 1.2 rad): success and the JSON report.
-fn cell_execute(config: &Path, plan: &Path) -> (bool, serde_json::Value) {
+/// `cell execute --json --plan FILE` and `extra` options against in-process
+/// simulators (fingers stop at 1.0, 1.1, 1.2 rad): success and the JSON report.
+fn cell_execute(config: &Path, plan: &Path, extra: &[&str]) -> (bool, serde_json::Value) {
     let out = Command::new(env!("CARGO_BIN_EXE_cell"))
         .arg("--config")
         .arg(config)
         .args(["execute", "--json", "--hold-s", "0.5"])
+        .args(extra)
         .args(["--sim-contact-rad", "1.0,1.1,1.2"])
         // Lenient link levels: a loaded machine must not drop the robot.
         .args(["--sim-miss-rates", "0.05,0.2,0.5"])
@@ -596,7 +597,7 @@ fn cell_plan_out_then_cell_execute_runs_the_planned_grasp() {
     let plan = ExecutionRequest::load(&plan_path).unwrap();
     assert_eq!(plan.task.as_deref(), Some("top"));
     assert_eq!(plan.method.as_deref(), Some("laplace"));
-    let (ok, json) = cell_execute(&config, &plan_path);
+    let (ok, json) = cell_execute(&config, &plan_path, &[]);
     assert!(ok, "{json:#}");
     assert_eq!(json["outcome"], "success", "{json:#}");
     // The arm went where the plan said: the final palm is the lifted grasp pose.
@@ -617,14 +618,19 @@ fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
     let cell = CellConfig::load(&config_path()).unwrap();
     let robot = Robot::load(&cell).unwrap();
     let config = private_config(&dir, &cell);
-    let run = |plan: &ExecutionRequest, name: &str| {
+    let run = |plan: &ExecutionRequest, name: &str, extra: &[&str]| {
         let path = dir.join(name);
         std::fs::write(&path, serde_json::to_string(plan).unwrap()).unwrap();
-        cell_execute(&config, &path)
+        cell_execute(&config, &path, extra)
     };
-    let (ok, json) = run(&good_plan(&robot), "good.json");
+    let (ok, json) = run(&good_plan(&robot), "good.json", &[]);
     assert!(ok, "{json:#}");
     assert_eq!(json["outcome"], "success");
+    // Without --park nothing is released.
+    assert!(
+        json["park"].is_null() && json["park_error"].is_null(),
+        "{json:#}"
+    );
     let palm = &json["final_palm"]["xyz"];
     // The approach went the whole overtravel (nothing to touch), then the lift.
     assert!((palm[2].as_f64().unwrap() - 0.25).abs() < 2e-3, "{palm}");
@@ -637,7 +643,7 @@ fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
     let mut low = good_plan(&robot);
     low.palm.xyz[2] = 0.03;
     low.joints_rad = solve(&robot, &top_down(0.6, 0.0, 0.03), &low.pregrasp_joints_rad);
-    let (ok, json) = run(&low, "low.json");
+    let (ok, json) = run(&low, "low.json", &["--park"]);
     assert!(!ok, "an unsafe plan must exit non-zero");
     assert_eq!(json["outcome"], "failed");
     assert_eq!(json["error_kind"], "unsafe_motion");
@@ -645,4 +651,22 @@ fn cell_execute_cli_runs_a_plan_against_in_process_simulators() {
         json["error"].as_str().unwrap().contains("below the table"),
         "{json:#}"
     );
+    // A refused plan moved nothing, so --park has nothing to release.
+    assert!(
+        json["park"].is_null() && json["park_error"].is_null(),
+        "{json:#}"
+    );
+
+    // With --park the held object is put down, the hand opens and the arm parks.
+    let (ok, json) = run(&good_plan(&robot), "good.json", &["--park"]);
+    assert!(ok, "{json:#}");
+    assert_eq!(json["outcome"], "success");
+    assert!(json["park_error"].is_null(), "{json:#}");
+    for motion in ["put_down", "retreat", "park"] {
+        let m = &json["park"][motion];
+        assert!(
+            m["duration_s"].as_f64().unwrap() > 0.0,
+            "{motion}: {json:#}"
+        );
+    }
 }

@@ -249,6 +249,7 @@ impl Cell {
     pub fn start(options: HarnessOptions, domain: Domain) -> Result<Cell, CellError> {
         let config = CellConfig::load(&options.stage.config)?;
         check_binaries(&options)?;
+        warn_if_parked_arm_in_view(&config);
         let tag = format!(
             "{}x{}",
             std::process::id(),
@@ -828,6 +829,62 @@ pub const PLACEMENT_X_M: (f64, f64) = (0.50, 0.68);
 /// See [`PLACEMENT_X_M`].
 pub const PLACEMENT_Y_M: (f64, f64) = (-0.18, 0.18);
 
+/// Heights above the table (m) of the lines of sight [`arm_in_view`] checks: the
+/// table, and the middle and top of a tall object.
+const SIGHT_HEIGHTS_M: [f64; 3] = [0.0, 0.12, 0.25];
+
+/// Spacing of [`arm_in_view`]'s grid over the placement area (m).
+const SIGHT_GRID_M: f64 = 0.02;
+
+/// Whether the arm at `joints` (hand open) stands between the camera at
+/// `base_from_camera` and the placement area ([`PLACEMENT_X_M`] x
+/// [`PLACEMENT_Y_M`], from the table up to 0.25 m above it, on a 2 cm grid): the
+/// first link found in a line of sight, and the point (base frame, m) it hides.
+/// `None`: the camera sees every placement past the arm. The park joints must give
+/// `None`, since the snapshot is taken with the arm parked.
+pub fn arm_in_view(
+    config: &CellConfig,
+    robot: &crate::robot::Robot,
+    base_from_camera: &crate::geometry::Pose,
+    joints: &crate::robot::kinematics::ArmJoints,
+) -> Option<(String, [f64; 3])> {
+    let camera = base_from_camera.translation.vector.into();
+    let hand = crate::robot::HandPose::default();
+    let steps = |(lo, hi): (f64, f64)| ((hi - lo) / SIGHT_GRID_M).round() as usize;
+    let (nx, ny) = (steps(PLACEMENT_X_M), steps(PLACEMENT_Y_M));
+    (0..=nx)
+        .flat_map(|i| (0..=ny).map(move |j| (i, j)))
+        .flat_map(|(i, j)| SIGHT_HEIGHTS_M.map(|h| (i, j, h)))
+        .find_map(|(i, j, h)| {
+            let point = [
+                PLACEMENT_X_M.0 + i as f64 * SIGHT_GRID_M,
+                PLACEMENT_Y_M.0 + j as f64 * SIGHT_GRID_M,
+                config.table.height_m + h,
+            ];
+            robot
+                .link_on_segment(joints, &hand, &camera, &point.into())
+                .map(|link| (link.to_string(), point))
+        })
+}
+
+/// Warns when the arm at `robot.park_joints_rad` would stand in the configured
+/// camera's view of the placement area ([`arm_in_view`]).
+fn warn_if_parked_arm_in_view(config: &CellConfig) {
+    let Ok(robot) = crate::robot::Robot::load(config) else {
+        return; // The stages load it themselves and report why.
+    };
+    let camera = config.base_from_camera();
+    if let Some((link, [x, y, z])) =
+        arm_in_view(config, &robot, &camera, &config.robot.park_joints_rad)
+    {
+        tracing::warn!(
+            "robot.park_joints_rad: the parked arm's {link} stands between the camera \
+             (camera.base_from_camera) and the placement area, hiding ({x:.2}, {y:.2}, \
+             {z:.2}) m; snapshots will show the arm. Choose park joints behind the table"
+        );
+    }
+}
+
 /// Placement `index` of an object, drawn from `rng`: upright, at a random point of
 /// the comfortable area, turned by a random yaw.
 pub fn random_placement(config: &CellConfig, rng: &mut ChaCha8Rng, index: u32) -> Placement {
@@ -849,6 +906,7 @@ pub fn placement_rng(seed: u64, object_index: u64) -> ChaCha8Rng {
 mod tests {
     use super::*;
     use clap::Parser;
+    use std::f64::consts::PI;
 
     #[derive(Parser)]
     struct Args {
@@ -860,6 +918,32 @@ mod tests {
         let mut options = HarnessOptions::demo(Args::parse_from(["t"]).stage).unwrap();
         options.bin_dir = bin_dir.to_path_buf();
         options
+    }
+
+    /// The snapshot is taken with the arm parked: the shipped park joints leave the
+    /// camera a clear view of every placement, and an arm reaching out over the
+    /// table does not.
+    #[test]
+    fn the_parked_arm_leaves_the_camera_a_clear_view_of_the_placements() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(crate::config::DEFAULT_CONFIG_PATH);
+        let config = CellConfig::load(&path).unwrap();
+        let robot = crate::robot::Robot::load(&config).unwrap();
+        let camera = config.base_from_camera();
+        let park = config.robot.park_joints_rad;
+        assert_eq!(arm_in_view(&config, &robot, &camera, &park), None);
+        // With the palm 0.3 m above the placement area's middle, it hides some.
+        let above = crate::geometry::pose_from_params(&[0.6, 0.0, 0.30, PI, 0.0, PI]);
+        let hand = crate::robot::HandPose::OPEN;
+        let reaching = robot.reach(&above, &hand, &[park]).unwrap().joints;
+        let (link, point) = arm_in_view(&config, &robot, &camera, &reaching).expect("in view");
+        assert!(
+            link.starts_with("lbr_") || link.starts_with("bh_"),
+            "{link}"
+        );
+        assert!(
+            point[0] >= PLACEMENT_X_M.0 && point[0] <= PLACEMENT_X_M.1 + 1e-9,
+            "{point:?}"
+        );
     }
 
     #[test]

@@ -7,7 +7,9 @@
 
 use crate::clock::{Clock, SystemClock};
 use crate::config::CellConfig;
-use crate::execute::{ExecutionRequest, Executor, ExecutorConfig, Outcome, SafetyLimits};
+use crate::execute::{
+    ExecutionReport, ExecutionRequest, Executor, ExecutorConfig, Outcome, ParkReport, SafetyLimits,
+};
 use crate::hw::can::{open_bus, open_bus_logged, parse_interface, InterfaceKind};
 use crate::hw::fri::{DriverConfig, FriDriver, JOINTS};
 use crate::hw::hand::{Hand, HandTiming};
@@ -17,6 +19,7 @@ use crate::sim::puck::{HandEmulator, HandEmulatorConfig};
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -34,12 +37,9 @@ pub struct ExecuteArgs {
     #[arg(long)]
     pub external_sims: bool,
     /// Joints A1,A2,E1,A3,A4,A5,A6 (rad) the in-process arm simulator starts at.
-    #[arg(
-        long,
-        allow_hyphen_values = true,
-        default_value = "0,-0.3,0,1.6,0,-0.8,0"
-    )]
-    pub sim_initial_joints: String,
+    /// Default: the configured park joints (`robot.park_joints_rad`).
+    #[arg(long, allow_hyphen_values = true, value_name = "A1,A2,E1,A3,A4,A5,A6")]
+    pub sim_initial_joints: Option<String>,
     /// Joint angles (rad) of F1,F2,F3 where the in-process hand emulator's object
     /// stops the closing fingers.
     #[arg(long, value_name = "F1,F2,F3", default_value = "1.0,1.0,1.0")]
@@ -55,12 +55,46 @@ pub struct ExecuteArgs {
     /// How long to hold the lifted object (s).
     #[arg(long, default_value_t = 2.0)]
     pub hold_s: f64,
+    /// After the grasp (held, closed on air or lost), put the object down where it
+    /// was lifted from, open the hand, back out along the approach and move to the
+    /// park joints (`robot.park_joints_rad`), as the cell does after every trial.
+    /// Without it the arm and hand stay as the grasp left them. Nothing is released
+    /// after a device fault or a refused plan.
+    #[arg(long)]
+    pub park: bool,
     /// Log every CAN frame of the executor to FILE in candump's log format.
     #[arg(long, value_name = "FILE")]
     pub candump: Option<PathBuf>,
     /// Print the execution report as JSON.
     #[arg(long)]
     pub json: bool,
+}
+
+/// What `cell execute` prints: the grasp's report and, with `--park`, what
+/// releasing and parking did.
+#[derive(Serialize)]
+struct ExecuteOutput {
+    #[serde(flatten)]
+    report: ExecutionReport,
+    /// The release and park, when it ran.
+    park: Option<ParkReport>,
+    /// Why it failed (the arm and hand then hold where they stopped).
+    park_error: Option<String>,
+}
+
+impl ExecuteOutput {
+    fn human(&self) -> String {
+        let mut text = self.report.human();
+        if let Some(park) = &self.park {
+            text += &format!("released and parked in {:.2} s\n", park.total_s);
+        }
+        if let Some(e) = &self.park_error {
+            text += &format!(
+                "release and park FAILED: {e}; the arm and hand hold where they stopped\n"
+            );
+        }
+        text
+    }
 }
 
 /// Runs `cell execute`; exits non-zero when the grasp failed (the report says why).
@@ -79,14 +113,16 @@ pub fn run(config_path: &Path, args: ExecuteArgs) -> anyhow::Result<ExitCode> {
     let driver = FriDriver::start(DriverConfig::from_cell(&cell.fri)?, Arc::clone(&clock))
         .context("starting the FRI driver")?;
     let arm_sim = if cell.fri.backend == "sim" && !args.external_sims {
-        let q = crate::geometry::parse_numbers(
-            &args.sim_initial_joints,
-            JOINTS,
-            "--sim-initial-joints",
-        )?;
+        let initial_joints_rad = match &args.sim_initial_joints {
+            Some(text) => {
+                let q = crate::geometry::parse_numbers(text, JOINTS, "--sim-initial-joints")?;
+                std::array::from_fn(|j| q[j])
+            }
+            None => cell.robot.park_joints_rad,
+        };
         let config = SimConfig {
             cycle_s: cell.fri.cycle_s,
-            initial_joints_rad: std::array::from_fn(|j| q[j]),
+            initial_joints_rad,
             quality: QualityThresholds::from_text(
                 &args.sim_miss_rates,
                 &args.sim_consecutive_misses,
@@ -137,6 +173,18 @@ pub fn run(config_path: &Path, args: ExecuteArgs) -> anyhow::Result<ExitCode> {
     bar.enable_steady_tick(Duration::from_millis(100));
     let report =
         executor.execute_observed(&request, &mut |phase| bar.set_message(phase.to_string()));
+    let mut output = ExecuteOutput {
+        report,
+        park: None,
+        park_error: None,
+    };
+    if args.park {
+        bar.set_message("release and park");
+        match executor.release_and_park(&cell.robot.park_joints_rad) {
+            Ok(park) => output.park = park,
+            Err(e) => output.park_error = Some(e.to_string()),
+        }
+    }
     bar.finish_and_clear();
     drop(executor);
     // The simulated robot stops first, so it does not see the driver go silent.
@@ -144,10 +192,12 @@ pub fn run(config_path: &Path, args: ExecuteArgs) -> anyhow::Result<ExitCode> {
     if let Err(e) = driver.shutdown(1.0) {
         tracing::warn!("FRI driver shutdown: {e}");
     }
-    super::emit(args.json, &report, |r| r.human())?;
-    Ok(if report.outcome == Outcome::Success {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::FAILURE
-    })
+    super::emit(args.json, &output, ExecuteOutput::human)?;
+    Ok(
+        if output.report.outcome == Outcome::Success && output.park_error.is_none() {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::FAILURE
+        },
+    )
 }

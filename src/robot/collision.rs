@@ -268,6 +268,31 @@ impl CollisionModel {
             })
     }
 
+    /// The link (at `poses`) nearest `from` on the straight segment `from`–`to`
+    /// (base frame): what a camera at `from` sees instead of `to`.
+    pub fn link_on_segment(
+        &self,
+        poses: &[Pose],
+        from: &nalgebra::Point3<f64>,
+        to: &nalgebra::Point3<f64>,
+    ) -> Option<&str> {
+        let length_m = (to - from).norm();
+        if length_m <= 0.0 {
+            return None;
+        }
+        let ray = query::Ray::new(*from, (to - from) / length_m);
+        let hits = (0..self.shapes.len()).flat_map(|l| {
+            self.shapes[l].iter().filter_map(move |s| {
+                let world_from_shape = poses[l] * s.link_from_shape;
+                s.shape
+                    .cast_ray(&world_from_shape, &ray, length_m, true)
+                    .map(|toi| (toi, l))
+            })
+        });
+        hits.min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, l)| self.names[l].as_str())
+    }
+
     /// The first of `links` (at `poses`) that touches the table.
     pub fn first_on_table(&self, links: &[usize], poses: &[Pose]) -> Option<Collision> {
         links
@@ -312,6 +337,27 @@ mod tests {
             )
             .unwrap_or(true)
         })
+    }
+
+    #[test]
+    fn a_line_of_sight_through_the_upright_arm_names_its_link_and_one_beside_it_none() {
+        let robot = crate::robot::shipped_robot();
+        let (q, hand) = ([0.0; ARM_DOF], HandPose::default());
+        let seen = |from: [f64; 3], to: [f64; 3]| {
+            robot
+                .link_on_segment(&q, &hand, &from.into(), &to.into())
+                .map(str::to_string)
+        };
+        // Across the upright arm's column at 0.5 m.
+        let link = seen([1.0, 0.0, 0.5], [-1.0, 0.0, 0.5]).expect("a link");
+        assert!(link.starts_with("lbr_"), "{link}");
+        // The same line ending 0.3 m short of the column, and one 1 m to the side.
+        assert_eq!(seen([1.0, 0.0, 0.5], [0.3, 0.0, 0.5]), None);
+        assert_eq!(seen([1.0, 1.0, 0.5], [-1.0, 1.0, 0.5]), None);
+        // Down onto the hand above the arm.
+        let link = seen([0.0, 0.0, 2.0], [0.0, 0.0, 1.0]).expect("a link");
+        assert!(link.starts_with("bh_"), "{link}");
+        assert_eq!(seen([0.5, 0.5, 0.5], [0.5, 0.5, 0.5]), None);
     }
 
     /// Every pair's and every link's verdict is the exact test's, at random arm and

@@ -391,6 +391,19 @@ impl Robot {
         link_poses(&self.description, &self.variables(arm, hand))
     }
 
+    /// The first link of the robot at this configuration that stands in the line
+    /// of sight `from`–`to` (base frame), if any.
+    pub fn link_on_segment(
+        &self,
+        arm: &ArmJoints,
+        hand: &HandPose,
+        from: &nalgebra::Point3<f64>,
+        to: &nalgebra::Point3<f64>,
+    ) -> Option<&str> {
+        self.collision
+            .link_on_segment(&self.link_poses(arm, hand), from, to)
+    }
+
     /// The first collision of the robot at this configuration, if any.
     pub fn collision_at(&self, arm: &ArmJoints, hand: &HandPose) -> Option<Collision> {
         self.collision.check(&self.link_poses(arm, hand))
