@@ -2,6 +2,7 @@
 //! [`crate::execute`].
 
 use super::arm::Arm;
+use super::detour::{detour, DetourOptions};
 use super::motions::{advanced, approach_speed_m_s, lifted, validate_grasp, GraspMotions};
 use super::path::{straight_line, PathTolerance, StraightPath};
 use super::report::{
@@ -326,14 +327,29 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
         let start = self.commanded();
         let park_palm = self.robot.arm().palm(park_rad);
         let hand = self.arm.hand();
-        let (_, waypoints, path) = super::motions::free_move(
+        let (waypoints, path) = match super::motions::free_move(
             self.arm.safety(),
             &self.config,
             (PHASE, "park"),
             &start,
             (park_rad, &park_palm),
             &hand,
-        )?;
+        ) {
+            Ok((_, waypoints, path)) => (waypoints, path),
+            // Neither the joint line nor the palm's line: around, in joint space.
+            Err(refusal) => {
+                let options = DetourOptions::default();
+                let Some(waypoints) = detour(self.arm.safety(), &hand, &start, park_rad, &options)
+                else {
+                    return Err(refusal);
+                };
+                tracing::info!(
+                    waypoints = waypoints.len(),
+                    "park: a detour where the straight move is refused ({refusal})"
+                );
+                (waypoints, None)
+            }
+        };
         report.park = Some(self.move_along(PHASE, "park", &waypoints, path.as_ref())?);
         Ok(report)
     }
@@ -1001,19 +1017,25 @@ mod tests {
 
     impl Rig {
         fn new(emulator: HandEmulatorConfig) -> Rig {
-            Rig::build(emulator, None)
+            Rig::build(emulator, None, HOME)
+        }
+
+        /// [`Rig::new`] with the arm starting at `start`.
+        fn starting_at(emulator: HandEmulatorConfig, start: ArmJoints) -> Rig {
+            Rig::build(emulator, None, start)
         }
 
         /// Arm and hand in a simulated world of `scene`: the arm simulator reports
         /// its contact force, the hand emulator stalls where the grasp simulator
         /// closes on it.
         fn in_world(scene: &crate::sim::scene::Scene, name: &str) -> Rig {
-            Rig::build(HandEmulatorConfig::default(), Some((scene, name)))
+            Rig::build(HandEmulatorConfig::default(), Some((scene, name)), HOME)
         }
 
         fn build(
             emulator: HandEmulatorConfig,
             world: Option<(&crate::sim::scene::Scene, &str)>,
+            start: ArmJoints,
         ) -> Rig {
             use crate::sim::world::{ArmContact, HandContact, SimWorld, WorldLink, WorldWatch};
             let robot = Arc::new(shipped_robot());
@@ -1046,7 +1068,7 @@ mod tests {
             );
             let arm = LockstepArm::new(
                 SimConfig {
-                    initial_joints_rad: HOME,
+                    initial_joints_rad: start,
                     // The cell's KRL program loops around `friStart`.
                     restart_after_drop: true,
                     ..SimConfig::from_robot(&shipped_robot())
@@ -1445,6 +1467,50 @@ mod tests {
             assert!(finger_rad.abs() < 1e-3, "opened: {hand:?}");
         }
         assert!(ex.release_and_park(&HOME).unwrap().is_none());
+        drop(ex);
+        rig.assert_arm_at(&HOME, 1e-3);
+    }
+
+    /// After a grasp on the far branch of the shoulder (the first joint half a turn
+    /// from the park's), whose joint line to the park leaves the workspace, the arm
+    /// parks by a detour.
+    #[test]
+    fn a_grasp_on_the_far_branch_of_the_shoulder_parks_by_a_detour() {
+        let robot = shipped_robot();
+        // Near a side grasp a campaign executed there (the arm leaning less, so
+        // the fingers clear the table): the pre-grasp, and the grasp 10 cm ahead.
+        let mut pre = [-2.7647, 1.2439, -0.2989, -1.7398, -2.9008, 1.1982, -2.8456];
+        pre[1] -= 0.3;
+        let pregrasp = robot.arm().palm(&pre);
+        let palm = advanced(&pregrasp, 0.10);
+        let grasp = robot.reach(&palm, &HandPose::OPEN, &[pre]).unwrap().joints;
+        assert!(grasp[0] < -2.0, "the far branch: {grasp:?}");
+        let rig = Rig::starting_at(HandEmulatorConfig::default(), pre);
+        let req = ExecutionRequest {
+            palm: PoseJson::from(&palm),
+            pregrasp: PoseJson::from(&pregrasp),
+            joints_rad: grasp,
+            pregrasp_joints_rad: pre,
+            ..request(&rig.robot)
+        };
+        let mut ex = rig.executor(&rig.arm);
+        let report = ex.execute(&req);
+        assert_eq!(report.error_kind, Some("no_contact"), "{}", report.human());
+        // The straight move from the pre-grasp to the park is refused ...
+        let check = ex.safe_arm().safety();
+        let direct = crate::execute::motions::checked_motion(
+            check,
+            0.2,
+            Phase::Park,
+            "park",
+            &[pre, HOME],
+            None,
+            &HandPose::OPEN,
+        );
+        assert!(direct.is_err());
+        // ... and the arm parks all the same, through waypoints.
+        let park = ex.release_and_park(&HOME).unwrap().unwrap();
+        assert!(park.park.as_ref().unwrap().waypoints > 2, "{park:?}");
         drop(ex);
         rig.assert_arm_at(&HOME, 1e-3);
     }

@@ -35,7 +35,10 @@
 //!     the grasp is reported): put the object down where the lift began, open the
 //!     hand to the approach shape, back out along the approach to the pre-grasp and
 //!     move to the park joints (`robot.park_joints_rad`), so that every snapshot sees
-//!     the table without the arm and every plan starts from the same joints.
+//!     the table without the arm and every plan starts from the same joints. Where
+//!     neither the joint line nor the palm's line to the park is accepted (from a
+//!     grasp on the shoulder's far branch the joint line swings the palm over the
+//!     robot), the arm goes by a [`detour`](detour::detour) in joint space.
 //!
 //! # Watchdog and stop
 //! Every phase has a deadline on the injected [`Clock`](crate::clock::Clock); arm motions get their
@@ -72,6 +75,7 @@
 //! released and parked like a successful one.
 
 pub mod arm;
+pub mod detour;
 pub mod executor;
 pub mod motions;
 pub mod path;

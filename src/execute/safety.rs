@@ -226,6 +226,34 @@ impl SafetyCheck {
         Ok(())
     }
 
+    /// Checks one configuration, held still, with the hand shaped as `hand`: what
+    /// [`SafetyCheck::check_with`] checks at each sample of a motion (joint limits
+    /// with the margin, palm height and workspace, collisions), but no rates.
+    pub fn check_configuration(
+        &self,
+        joints: &[f64; JOINTS],
+        hand: &HandPose,
+    ) -> Result<(), SafetyError> {
+        let still = [(
+            0.0,
+            JointSample {
+                position: *joints,
+                velocity: [0.0; JOINTS],
+                acceleration: [0.0; JOINTS],
+            },
+        )];
+        self.check_joints(&still)?;
+        self.check_palm(&still)?;
+        match self.robot.collision_in_arm_motion(joints, hand, false) {
+            Some(collision) => Err(SafetyError::Collision {
+                collision,
+                joints_rad: *joints,
+                t_s: 0.0,
+            }),
+            None => Ok(()),
+        }
+    }
+
     /// Samples every `check_period_s` from 0, and the end.
     fn samples(&self, trajectory: &Trajectory<JOINTS>) -> Vec<(f64, JointSample<JOINTS>)> {
         let dt = self.limits.check_period_s;
