@@ -18,7 +18,7 @@ use crate::geometry::PoseJson;
 use crate::hw::can::CanBus;
 use crate::hw::fri::{ForceGuard, FriError, FriState, FriStatus};
 use crate::hw::hand::{Hand, HandPositions, Puck};
-use crate::robot::kinematics::ArmJoints;
+use crate::robot::kinematics::{joint_distance_rad, ArmJoints};
 use crate::robot::{HandPose, Robot};
 use nalgebra::Translation3;
 use std::sync::Arc;
@@ -121,10 +121,9 @@ pub struct Executor<A, B> {
     hand_ready: bool,
     /// What the last grasp left to release, while it may be released.
     leftover: Option<Leftover>,
-    /// The first loss of command mode while the arm stood still before this
-    /// grasp's first motion, for [`Executor::rejoin`].
-    /// What the link check found (the grasp's error if the robot does not
-    /// return).
+    /// What the link check found at the first loss of command mode while the arm
+    /// stood still before this grasp's first motion, for [`Executor::rejoin`] (the
+    /// grasp's error if the robot does not return).
     idle_drop: Option<ExecuteError>,
 }
 
@@ -741,9 +740,7 @@ impl<A: Arm, B: CanBus> Executor<A, B> {
             lost_in: lost.phase(),
             link: lost.to_string(),
             waited_s,
-            drift_rad: (0..validated_start.len())
-                .map(|j| (status.commanded_rad[j] - validated_start[j]).abs())
-                .fold(0.0, f64::max),
+            drift_rad: joint_distance_rad(&status.commanded_rad, validated_start),
         };
         tracing::info!(
             ?rejoin,
