@@ -849,7 +849,7 @@ pub fn arm_in_view(
     joints: &crate::robot::kinematics::ArmJoints,
 ) -> Option<(String, [f64; 3])> {
     let camera = base_from_camera.translation.vector.into();
-    let hand = crate::robot::HandPose::default();
+    let hand = crate::robot::HandPose::OPEN;
     let steps = |(lo, hi): (f64, f64)| ((hi - lo) / SIGHT_GRID_M).round() as usize;
     let (nx, ny) = (steps(PLACEMENT_X_M), steps(PLACEMENT_Y_M));
     (0..=nx)

@@ -1099,13 +1099,7 @@ mod tests {
         }
 
         fn executor<A: Arm>(&self, arm: A) -> Executor<A, Box<dyn CanBus>> {
-            Executor::from_cell(
-                arm,
-                self.hand.borrow_mut().take().unwrap(),
-                Arc::clone(&self.robot),
-                &cell(),
-                Arc::clone(&self.clock),
-            )
+            self.executor_with(arm, |_| {})
         }
 
         /// An executor with the cell's settings changed by `adjust`.
