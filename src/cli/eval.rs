@@ -934,7 +934,7 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
     );
     text += &format!("{} trials in {:.1} s\n", r.trials.len(), seconds);
     text += &format!(
-        "{:<12} {:<12} {:>6} {:>8} {:>8} {:>8} {:>5} {:>8} {:>6} {:>6} {:>6} {:>5} {:>5} {:>7}  {}\n",
+        "{:<12} {:<12} {:>6} {:>8} {:>8} {:>8} {:>5} {:>8} {:>6} {:>4} {:>6} {:>6} {:>5} {:>5} {:>7}  {}\n",
         "task",
         "method",
         "trials",
@@ -944,6 +944,7 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
         "unrch",
         "succ|rch",
         "phys%",
+        "tbl",
         "stat%",
         "FC%",
         "agree",
@@ -954,7 +955,7 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
     for row in &r.rows {
         let causes: Vec<String> = row.causes.iter().map(|(c, n)| format!("{c} {n}")).collect();
         text += &format!(
-            "{:<12} {:<12} {:>6} {:>7.0}% {:>7.0}% {:>7.0}% {:>5} {:>7.0}% {:>5.0}% {:>5.0}% {:>5.0}% {:>5} {:>5} {:>7.4}  {}\n",
+            "{:<12} {:<12} {:>6} {:>7.0}% {:>7.0}% {:>7.0}% {:>5} {:>7.0}% {:>5.0}% {:>4} {:>5.0}% {:>5.0}% {:>5} {:>5} {:>7.4}  {}\n",
             row.task,
             row.method,
             row.trials,
@@ -964,6 +965,7 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
             row.out_of_reach,
             row.success_in_reach_pct,
             row.physics_success_pct,
+            row.physics_success_in_table,
             row.static_success_pct,
             row.force_closure_pct,
             row.verdicts.agree,
@@ -977,7 +979,7 @@ fn novel_text(r: &NovelReport, seconds: f64) -> String {
         verdicts.add(t.physics_grade, t.static_grade);
     }
     text += &verdicts.to_text();
-    text += "(success / partial / failure: the observer's grades; unrch: trials whose task no example grasp reaches at the object's true pose (any method fails them), succ|rch: success over the others; phys% / stat%: successes by the rigid-body lift test and by static epsilon, agree: trials both grade alike; FC: force closure; coll: open hand colliding at the executed pose)\n";
+    text += "(success / partial / failure: the observer's grades; unrch: trials whose task no example grasp reaches at the object's true pose (any method fails them), succ|rch: success over the others; phys% / stat%: successes by the rigid-body lift test and by static epsilon, tbl: physics successes whose hand went 1 mm or more into the table while closing (the solver's give), agree: trials both grade alike; FC: force closure; coll: open hand colliding at the executed pose)\n";
     text
 }
 

@@ -331,7 +331,7 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
         if let Some(l) = &r.lift {
             text += &format!(
                 "physics: {:?} ({:?}): rose {:.1} mm, slip {:.1} mm, turn {:.1} deg, touching {}; \
-                 mass {:.3} kg, closed in {:.2} s, {} steps\n",
+                 mass {:.3} kg, closed in {:.2} s, {} steps, the hand {:.1} mm into the table\n",
                 l.grade,
                 l.rule,
                 1e3 * l.lift_height_m,
@@ -344,7 +344,8 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
                 },
                 l.mass_kg,
                 l.close_s,
-                l.steps
+                l.steps,
+                1e3 * l.table_penetration_m
             );
             if let Some(c) = &l.start_collision {
                 text += &format!("  invalid start: {c}\n");

@@ -40,6 +40,7 @@ use crate::robot::{HandPose, PreshapeRad, Robot};
 use crate::sim::camera::DepthCamera;
 use crate::sim::lab::{LabDraw, LabErrors};
 use crate::sim::observer::{Agreement, Attempt, Observation, Observer};
+use crate::sim::physics::TABLE_GIVE_M;
 use crate::sim::scene::{Scene, TableBox};
 use crate::trial::{FailureCause, Grade};
 use serde::Serialize;
@@ -214,6 +215,10 @@ pub struct NovelTrial {
     pub best_fit_offset_mm: Option<f64>,
     /// Planning time of this method (ms).
     pub plan_ms: f64,
+    /// How deep the hand went into the table while closing in the lift test (mm,
+    /// the median run), when executed: the physics' give at the table
+    /// ([`crate::sim::physics::LiftOutcome::table_penetration_m`]).
+    pub table_penetration_mm: Option<f64>,
 }
 
 /// Counts over a set of trials of one task (or all) and method.
@@ -254,6 +259,9 @@ pub struct NovelRow {
     pub physics_success_pct: f64,
     /// Successes by the static (epsilon) verdict, in percent of trials.
     pub static_success_pct: f64,
+    /// Physics successes whose hand went [`TABLE_GIVE_M`] or more into the table
+    /// while closing.
+    pub physics_success_in_table: usize,
     /// The two verdicts side by side (rows physics, columns static).
     pub verdicts: Agreement,
 }
@@ -278,6 +286,7 @@ impl NovelRow {
             success_in_reach_pct: 0.0,
             physics_success_pct: 0.0,
             static_success_pct: 0.0,
+            physics_success_in_table: 0,
             verdicts: Agreement::default(),
         };
         let (mut fc, mut eps, mut physics_ok, mut static_ok) = (0usize, 0.0, 0usize, 0usize);
@@ -297,6 +306,11 @@ impl NovelRow {
             eps += t.epsilon;
             row.verdicts.add(t.physics_grade, t.static_grade);
             physics_ok += usize::from(t.physics_grade == Grade::Success);
+            row.physics_success_in_table += usize::from(
+                t.physics_grade == Grade::Success
+                    && t.table_penetration_mm
+                        .is_some_and(|mm| mm >= TABLE_GIVE_M * 1e3),
+            );
             row.out_of_reach += usize::from(!t.task_in_reach);
             success_in_reach += usize::from(t.task_in_reach && t.grade == Grade::Success);
             static_ok += usize::from(t.static_grade == Grade::Success);
@@ -838,6 +852,7 @@ impl<'a> NovelRun<'a> {
             preshape_rad: palm.map(|(_, hand)| PreshapeRad(hand.flex_rad)),
             best_fit_offset_mm: placed.best_fit_offset_mm,
             plan_ms,
+            table_penetration_mm: seen.lift.as_ref().map(|l| l.table_penetration_m * 1e3),
         })
     }
 
@@ -948,6 +963,7 @@ mod tests {
             preshape_rad: None,
             best_fit_offset_mm: None,
             plan_ms: 1.0,
+            table_penetration_mm: Some(0.0),
         }
     }
 
@@ -969,7 +985,10 @@ mod tests {
             trial("top", "laplace", Grade::Success, 0.1, false),
             trial("top", "laplace", Grade::Partial, 0.02, false),
             trial("top", "laplace", Grade::Failure, 0.0, true),
-            trial("side", "laplace", Grade::Success, 0.2, false),
+            NovelTrial {
+                table_penetration_mm: Some(TABLE_GIVE_M * 1e3),
+                ..trial("side", "laplace", Grade::Success, 0.2, false)
+            },
             trial("top", "best-single", Grade::Failure, 0.0, true),
         ];
         let tasks = vec!["mug top".to_string(), "mug side".to_string()];
@@ -996,6 +1015,15 @@ mod tests {
             (1, 0.0)
         );
         assert_eq!(rows[3].trials, 0, "best single had no side trial");
+        // The side success went 1 mm into the table while closing; none on top.
+        assert_eq!(
+            (
+                top.physics_success_in_table,
+                rows[2].physics_success_in_table
+            ),
+            (0, 1)
+        );
+        assert_eq!(all.physics_success_in_table, 1);
         // Both verdicts: physics is the grade here; static succeeds above 0.05.
         assert!((top.physics_success_pct - 100.0 / 3.0).abs() < 1e-9);
         assert!((top.static_success_pct - 100.0 / 3.0).abs() < 1e-9);

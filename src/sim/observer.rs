@@ -51,6 +51,7 @@ use crate::robot::hand::HandModel;
 use crate::robot::{PreshapeRad, RobotError};
 use crate::sim::physics::{
     lift_test, LiftOutcome, LiftRule, LiftScene, PhysicsError, PhysicsObject, PhysicsOptions,
+    TABLE_GIVE_M,
 };
 use crate::trial::{FailureCause, Grade};
 use rayon::prelude::*;
@@ -605,8 +606,16 @@ impl Observer {
                 e.yaw_deg
             )
         });
+        let in_table = if lift.table_penetration_m >= TABLE_GIVE_M {
+            format!(
+                ", the hand {:.1} mm into the table while closing",
+                lift.table_penetration_m * 1e3
+            )
+        } else {
+            String::new()
+        };
         let note = format!(
-            "{} observer: physics {:?} ({}: rose {:.0} mm, slip {:.1} mm, turn {:.1} deg, touching {}{run_grades});              static {:?} ({}: epsilon {epsilon:.3}, {contacts} parts){reg}",
+            "{} observer: physics {:?} ({}: rose {:.0} mm, slip {:.1} mm, turn {:.1} deg, touching {}{in_table}{run_grades});              static {:?} ({}: epsilon {epsilon:.3}, {contacts} parts){reg}",
             self.mode,
             physics.grade,
             physics.rule.phrase(),

@@ -102,6 +102,12 @@ const STALL_TIME_S: f64 = 0.05;
 /// The object moved farther than this (m) while the hand closed: pushed away.
 const PUSHED_AWAY_M: f64 = 0.02;
 
+/// A hand that goes this deep into the table while closing (m) leans on the
+/// solver's give there (its joints and contacts yield under the finger motors'
+/// torque; the table and the links are rigid): the observer's note says so, and
+/// `cell eval novel` counts the physics successes that did.
+pub const TABLE_GIVE_M: f64 = 1e-3;
+
 /// Collision groups: hand links, the object, the table.
 const HAND: Group = Group::GROUP_1;
 const OBJECT: Group = Group::GROUP_2;
@@ -506,6 +512,9 @@ pub struct LiftOutcome {
     pub steps: usize,
     /// The object's mass (kg).
     pub mass_kg: f64,
+    /// How deep the hand went into the table while closing (m; 0 when it stayed
+    /// above it, or without a table): the give of the solver's contacts and joints.
+    pub table_penetration_m: f64,
 }
 
 /// The name of a hand part for the contact list.
@@ -703,6 +712,7 @@ pub fn lift_test(
     let mut rig = LiftRig::build(hand, object, scene, options);
     let start_object = rig.object_pose();
     outcome.close_s = rig.close();
+    outcome.table_penetration_m = rig.table_penetration_m;
     rig.record_fingers(&mut outcome);
     let closed_object = rig.object_pose();
     outcome.moved_while_closing_m =
@@ -770,6 +780,7 @@ fn unstarted_outcome(mass_kg: f64) -> LiftOutcome {
         close_s: 0.0,
         steps: 0,
         mass_kg,
+        table_penetration_m: 0.0,
     }
 }
 
@@ -1059,6 +1070,8 @@ struct LiftRig<'a> {
     /// Colliders of each part: palm, then F1 F2 F3 (both links).
     part_colliders: Vec<Vec<ColliderHandle>>,
     fingers: Vec<FingerBody>,
+    /// The deepest the hand has gone into the table while closing (m).
+    table_penetration_m: f64,
 }
 
 impl<'a> LiftRig<'a> {
@@ -1096,7 +1109,21 @@ impl<'a> LiftRig<'a> {
             palm,
             part_colliders,
             fingers,
+            table_penetration_m: 0.0,
         }
+    }
+
+    /// How far the hand's lowest point is below the table top now (m; 0 above it).
+    fn below_table_m(&self) -> f64 {
+        let Some(h) = self.scene.table_height_m else {
+            return 0.0;
+        };
+        self.part_colliders
+            .iter()
+            .flatten()
+            .filter_map(|&c| self.world.colliders.get(c))
+            .map(|c| h - c.compute_aabb().mins.z)
+            .fold(0.0, f64::max)
     }
 
     /// The object's pose now.
@@ -1122,6 +1149,7 @@ impl<'a> LiftRig<'a> {
         {
             self.press_and_step();
             t += dt;
+            self.table_penetration_m = self.table_penetration_m.max(self.below_table_m());
             for (f, finger) in self.fingers.iter_mut().zip(&self.hand.fingers) {
                 let (flex, distal) = f.angles(&self.world, &self.scene.base_from_palm, finger);
                 match f.phase {
@@ -1409,6 +1437,72 @@ pub(crate) mod tests {
     /// finger stopped at first contact) finds no force closure are picked by the
     /// static criterion alone; in physics the closing fingers pull the box against
     /// the palm and it lifts.
+    /// Fingers pre-shaped to 0.95 rad, the palm from above as low as the open hand
+    /// clears the table (as an approach to contact stops on it), nothing between
+    /// the fingers: closing first moves the distal links' lowest corners down, and
+    /// the solver lets them into the rigid table by about 2 mm. The outcome says how
+    /// deep; 5 mm higher they stay above it.
+    #[test]
+    fn the_depth_the_hand_goes_into_the_table_while_closing_is_measured() {
+        let hand = hand();
+        let options = PhysicsOptions::default();
+        let mesh = cuboid([0.0, 0.0, 0.0125], [0.03, 0.1, 0.025]);
+        let object = PhysicsObject::new(&mesh, Path::new("block"), &options).unwrap();
+        // The block stands 0.3 m to the side, out of the hand's way.
+        let base_from_object = crate::geometry::pose_from_params(&[0.6, 0.3, 0.0, 0.0, 0.0, 0.0]);
+        let table = object.grasp_object().clone().with_table(Some(0.0));
+        let preshape = HandPose {
+            spread_rad: 0.4,
+            flex_rad: [0.95; 3],
+        };
+        let palm_at = |z: f64| {
+            crate::geometry::pose_from_params(&[
+                0.6,
+                0.0,
+                z,
+                std::f64::consts::PI,
+                0.0,
+                -std::f64::consts::FRAC_PI_2,
+            ])
+        };
+        let clears = |z: f64| {
+            open_hand_collision(
+                &hand,
+                &table,
+                &(base_from_object.inverse() * palm_at(z)),
+                &preshape,
+            )
+            .is_none()
+        };
+        let mut lowest = 0.25;
+        while clears(lowest - 2e-4) {
+            lowest -= 2e-4;
+        }
+        assert!(
+            lowest < 0.2 && !clears(lowest - 1e-3),
+            "the open hand reaches the table at {lowest} m"
+        );
+        let depth = |z: f64| {
+            let scene = LiftScene {
+                base_from_object,
+                base_from_palm: palm_at(z),
+                preshape,
+                table_height_m: Some(0.0),
+            };
+            lift_test(&hand, &object, &scene, &options)
+                .unwrap()
+                .table_penetration_m
+        };
+        let (on, above) = (depth(lowest), depth(lowest + 0.005));
+        eprintln!(
+            "palm at {lowest:.4} m: {:.2} mm into the table; 5 mm higher: {:.2} mm",
+            on * 1e3,
+            above * 1e3
+        );
+        assert!((TABLE_GIVE_M..0.005).contains(&on), "{on}");
+        assert_eq!(above, 0.0);
+    }
+
     #[test]
     fn a_grasp_round_a_box_s_edges_pulls_it_against_the_palm_where_static_epsilon_is_0() {
         use crate::quality::autograsp::{evaluate_grasp, AutoGraspOptions};
