@@ -108,6 +108,12 @@ const PUSHED_AWAY_M: f64 = 0.02;
 /// `cell eval novel` counts the physics successes that did.
 pub const TABLE_GIVE_M: f64 = 1e-3;
 
+/// A closing finger pressed this deep into the table (m) stalls there
+/// ([`FingerPhase::OnTable`]), as on a rigid table; the solver's contacts would let
+/// it sink on under the motor's torque (12 mm in 3 s for a handle grasp whose
+/// lower finger met the table).
+const TABLE_STALL_M: f64 = 0.5e-3;
+
 /// Collision groups: hand links, the object, the table.
 const HAND: Group = Group::GROUP_1;
 const OBJECT: Group = Group::GROUP_2;
@@ -476,6 +482,9 @@ pub enum FingerPhase {
     Breakaway,
     /// Broke away and the distal link stopped (blocked or at its limit).
     Stopped,
+    /// Pressed into the table ([`TABLE_STALL_M`]) while closing: the finger stalls
+    /// there and holds, as on a rigid table, without pressing on.
+    OnTable,
 }
 
 /// The outcome of one lift test.
@@ -687,6 +696,19 @@ fn press(world: &mut World, fingers: &[FingerBody], hand: &HandModel) {
             b.add_torque(sign * tau, true);
         }
     }
+}
+
+/// How far the lowest of `colliders` (boxes: their bounding box's floor is their
+/// lowest corner) is below the scene's table top (m; 0 above it or without a table).
+fn below_table_m(world: &World, scene: &LiftScene, colliders: &[ColliderHandle]) -> f64 {
+    let Some(h) = scene.table_height_m else {
+        return 0.0;
+    };
+    colliders
+        .iter()
+        .filter_map(|&c| world.colliders.get(c))
+        .map(|c| h - c.compute_aabb().mins.z)
+        .fold(0.0, f64::max)
 }
 
 /// The flex motor's closing speed (rad/s) and torque (N m) of `finger`.
@@ -1044,6 +1066,21 @@ impl FingerBody {
         }
     }
 
+    /// The finger pressed into the table: it stalls there. Both joints hold where
+    /// they are (the worm drive and the train), and the finger does not press on:
+    /// the solver's contacts would let it sink into the rigid table.
+    fn stall_on_table(&mut self, world: &mut World, finger: &Finger, flex: f64, distal: f64) {
+        self.phase = FingerPhase::OnTable;
+        let hold = GEAR_HOLD_FACTOR * flex_drive(finger).1;
+        for (joint, angle) in [(self.flex_joint, flex), (self.distal_joint, distal)] {
+            if let Some(j) = world.joints.get_mut(joint, true) {
+                j.data
+                    .set_motor_position(JointAxis::AngX, angle, HOLD_STIFFNESS, HOLD_DAMPING)
+                    .set_motor_max_force(JointAxis::AngX, hold);
+            }
+        }
+    }
+
     /// At the close's timeout, a finger still moving (a distal link that jitters
     /// against the object never counts as stalled) is where the real hand's motor
     /// stalls and keeps its torque: the proximal link holds (the worm drive), the
@@ -1114,15 +1151,10 @@ impl<'a> LiftRig<'a> {
     }
 
     /// How far the hand's lowest point is below the table top now (m; 0 above it).
-    fn below_table_m(&self) -> f64 {
-        let Some(h) = self.scene.table_height_m else {
-            return 0.0;
-        };
+    fn hand_below_table_m(&self) -> f64 {
         self.part_colliders
             .iter()
-            .flatten()
-            .filter_map(|&c| self.world.colliders.get(c))
-            .map(|c| h - c.compute_aabb().mins.z)
+            .map(|colliders| below_table_m(&self.world, self.scene, colliders))
             .fold(0.0, f64::max)
     }
 
@@ -1149,13 +1181,21 @@ impl<'a> LiftRig<'a> {
         {
             self.press_and_step();
             t += dt;
-            self.table_penetration_m = self.table_penetration_m.max(self.below_table_m());
-            for (f, finger) in self.fingers.iter_mut().zip(&self.hand.fingers) {
+            self.table_penetration_m = self.table_penetration_m.max(self.hand_below_table_m());
+            for (i, (f, finger)) in self.fingers.iter_mut().zip(&self.hand.fingers).enumerate() {
                 let (flex, distal) = f.angles(&self.world, &self.scene.base_from_palm, finger);
+                let moving = matches!(f.phase, FingerPhase::Closing | FingerPhase::Breakaway);
+                if moving
+                    && below_table_m(&self.world, self.scene, &self.part_colliders[i + 1])
+                        >= TABLE_STALL_M
+                {
+                    f.stall_on_table(&mut self.world, finger, flex, distal);
+                    continue;
+                }
                 match f.phase {
                     FingerPhase::Closing => f.step_closing(&mut self.world, finger, flex, t, dt),
                     FingerPhase::Breakaway => f.step_breakaway(&mut self.world, finger, distal, dt),
-                    FingerPhase::AtLimit | FingerPhase::Stopped => {}
+                    FingerPhase::AtLimit | FingerPhase::Stopped | FingerPhase::OnTable => {}
                 }
             }
         }
@@ -1439,11 +1479,11 @@ pub(crate) mod tests {
     /// the palm and it lifts.
     /// Fingers pre-shaped to 0.95 rad, the palm from above as low as the open hand
     /// clears the table (as an approach to contact stops on it), nothing between
-    /// the fingers: closing first moves the distal links' lowest corners down, and
-    /// the solver lets them into the rigid table by about 2 mm. The outcome says how
-    /// deep; 5 mm higher they stay above it.
+    /// the fingers: closing first moves the distal links' lowest corners down, into
+    /// the table. The fingers stall there, as on a rigid table (without the rule
+    /// the solver let them 2.2 mm in); 5 mm higher they close freely above it.
     #[test]
-    fn the_depth_the_hand_goes_into_the_table_while_closing_is_measured() {
+    fn fingers_closing_into_the_table_stall_on_it() {
         let hand = hand();
         let options = PhysicsOptions::default();
         let mesh = cuboid([0.0, 0.0, 0.0125], [0.03, 0.1, 0.025]);
@@ -1482,25 +1522,32 @@ pub(crate) mod tests {
             lowest < 0.2 && !clears(lowest - 1e-3),
             "the open hand reaches the table at {lowest} m"
         );
-        let depth = |z: f64| {
+        let close_at = |z: f64| {
             let scene = LiftScene {
                 base_from_object,
                 base_from_palm: palm_at(z),
                 preshape,
                 table_height_m: Some(0.0),
             };
-            lift_test(&hand, &object, &scene, &options)
-                .unwrap()
-                .table_penetration_m
+            lift_test(&hand, &object, &scene, &options).unwrap()
         };
-        let (on, above) = (depth(lowest), depth(lowest + 0.005));
-        eprintln!(
-            "palm at {lowest:.4} m: {:.2} mm into the table; 5 mm higher: {:.2} mm",
-            on * 1e3,
-            above * 1e3
+        let (on, above) = (close_at(lowest), close_at(lowest + 0.005));
+        eprintln!("palm at {lowest:.4} m: {on:?}\n5 mm higher: {above:?}");
+        assert_eq!(on.fingers, [FingerPhase::OnTable; 3], "{on:?}");
+        assert!(on.table_penetration_m < TABLE_GIVE_M, "{on:?}");
+        assert!(
+            on.flex_rad.iter().all(|&f| f < 1.0),
+            "stalled near 0.95 rad: {on:?}"
         );
-        assert!((TABLE_GIVE_M..0.005).contains(&on), "{on}");
-        assert_eq!(above, 0.0);
+        assert_eq!(above.table_penetration_m, 0.0);
+        assert!(
+            above.fingers.iter().all(|&p| p != FingerPhase::OnTable),
+            "{above:?}"
+        );
+        assert!(
+            above.flex_rad.iter().all(|&f| f > 1.2),
+            "closed freely: {above:?}"
+        );
     }
 
     #[test]
