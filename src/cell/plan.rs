@@ -4,9 +4,11 @@
 //! eq. 2 over the task's example grasps of every registered model with the method's
 //! kernel (`laplace`, `gaussian`, `gaussian-r`), or takes the best-single baseline
 //! (`best-single`), subject to the table and to inverse-kinematic reachability of
-//! the grasp and its pre-grasp ([`crate::plan::plan`]). It publishes the palm poses
-//! with the joint solutions, or a plan marked failed with the cause: registration
-//! (no usable fit), reachability (nothing reachable) or other (bad request).
+//! the grasp and its pre-grasp ([`crate::plan::plan`]); in the cell's protocol a
+//! grasp whose motions the executor refuses is planned again with the executor's
+//! checks in that constraint ([`plan_trial`]). It publishes the palm poses with the
+//! joint solutions, or a plan marked failed with the cause: registration (no usable
+//! fit), reachability (nothing reachable) or other (bad request).
 
 use super::notify::{self, Watchdog};
 use super::{stop_requested, ByTrial, CellError, TICK};
@@ -16,7 +18,7 @@ use crate::config::CellConfig;
 use crate::execute::{
     pregrasp_line_end, validate_grasp, ExecutionRequest, ExecutorConfig, SafetyCheck, SafetyLimits,
 };
-use crate::geometry::PoseJson;
+use crate::geometry::{Pose, PoseJson};
 use crate::ipc::Domain;
 use crate::ipc::{
     monotonic_now_ns, wait_any, FailureCause, FitStatus, Fits, GraspPlan, JointStates, Protocol,
@@ -28,8 +30,9 @@ use crate::plan::{
     SeenSurfaceOptions,
 };
 use crate::robot::hand::HandModel;
+use crate::robot::ik::IkSolution;
 use crate::robot::kinematics::ArmJoints;
-use crate::robot::Robot;
+use crate::robot::{HandPose, PreshapeRad, Robot, Unreachable};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -175,13 +178,49 @@ pub fn trial_options(
     Ok(options)
 }
 
-/// Plans trial `request` from `fits` for the cell's `robot` and `hand`: the grasp to
-/// execute, or why there is none. In the cell's protocol the open hand must clear
-/// the seen surface the fits carry ([`crate::plan::seen`]); the paper's protocol
-/// plans as published, without it.
+/// Plans trial `request` from `fits` for the cell's arm and `hand`: the grasp to
+/// execute, with joints whose motions `executor` accepts
+/// ([`TrialPlan::executable`]), or why there is none. The planner checks that the
+/// arm reaches the grasp and its pre-grasp (IK, collisions); in the cell's protocol
+/// the open hand must also clear the seen surface the fits carry
+/// ([`crate::plan::seen`]), and when the executor refuses the motions of the grasp
+/// planned so, the trial is planned again with the executor's checks in the
+/// planner's constraint ([`ExecutorReach`]): the best grasp the arm can also move
+/// through. Only a refused plan pays for that search. The paper's protocol plans as
+/// published, without either.
 pub fn plan_trial(
     config: &CellConfig,
-    robot: &Robot,
+    executor: &ExecutorReach,
+    hand: &HandModel,
+    dbs: &mut Databases,
+    request: &TrialRequest,
+    fits: &Fits,
+) -> Result<PlannedGrasp, PlanFailure> {
+    let protocol = request.protocol().map_err(|e| PlanFailure {
+        cause: FailureCause::Other,
+        detail: e.to_string(),
+    })?;
+    let planned = plan_method(config, executor.robot, hand, dbs, request, fits)?;
+    let refusal = match planned.executable(executor) {
+        Err(refusal) if !protocol.is_paper() => refusal,
+        done => return done,
+    };
+    let again = plan_method(config, executor, hand, dbs, request, fits)
+        .and_then(|plan| plan.executable(executor));
+    again.map_err(|second| PlanFailure {
+        cause: refusal.cause,
+        detail: format!(
+            "{}; planned again for motions the executor accepts: {}",
+            refusal.detail, second.detail
+        ),
+    })
+}
+
+/// [`plan_trial`]'s planning with the arm's reach `reach`: the method's grasp (and
+/// `laplace-sim`'s fallback), not yet checked by the executor.
+fn plan_method(
+    config: &CellConfig,
+    reach: &dyn Reachability,
     hand: &HandModel,
     dbs: &mut Databases,
     request: &TrialRequest,
@@ -218,7 +257,7 @@ pub fn plan_trial(
         ),
         _ => None,
     };
-    let reach = Some(robot as &dyn Reachability);
+    let reach = Some(reach);
     let outcome = plan_with(&model_fits, &grasps, task, &options, reach, seen.as_ref())
         .map_err(|e| other(e.to_string()))?;
     let mut fallback = None;
@@ -288,25 +327,19 @@ pub struct TrialPlan {
 }
 
 impl TrialPlan {
-    /// The method's grasp with joints whose motions from `current` the executor
-    /// accepts ([`executable_joints`]), else the fallback's; the refusal of the
-    /// method's grasp when neither is accepted.
-    pub fn executable(
-        self,
-        robot: &Robot,
-        check: &SafetyCheck,
-        config: &ExecutorConfig,
-        current: &ArmJoints,
-    ) -> Result<PlannedGrasp, PlanFailure> {
+    /// The method's grasp with joints whose motions the executor accepts
+    /// ([`executable_joints`]), else the fallback's; the refusal of the method's
+    /// grasp when neither is accepted.
+    pub fn executable(self, executor: &ExecutorReach) -> Result<PlannedGrasp, PlanFailure> {
         let mut grasp = self.grasp;
-        let refusal = match executable_joints(robot, check, config, &mut grasp, current) {
+        let refusal = match executable_joints(executor, &mut grasp) {
             Ok(()) => return Ok(grasp),
             Err(refusal) => refusal,
         };
         let Some(mut start) = self.fallback else {
             return Err(refusal);
         };
-        match executable_joints(robot, check, config, &mut start, current) {
+        match executable_joints(executor, &mut start) {
             Ok(()) => {
                 tracing::debug!(
                     "refined grasp refused ({}); executing its start",
@@ -319,86 +352,195 @@ impl TrialPlan {
     }
 }
 
-/// Picks joint solutions for `grasp` whose motions from the arm at `current` the
-/// executor will accept ([`validate_grasp`]: pre-grasp move, approach, lift, with
-/// its safety checks). The planner only needs some IK solution to know a pose is
-/// reachable, and from its generic seeds it may find one on another branch
-/// (shoulder turned by half a turn) that the executor's joint-space move could not
-/// reach safely. Pre-grasp solutions are tried seeded first with `current`, the
-/// planner's solution and its equivalents ([`crate::robot::kinematics::ArmKinematics::equivalents`]),
-/// the end of the palm's straight line from `current` ([`pregrasp_line_end`]), then
-/// the IK's spread of seeds; the grasp is solved near each.
-/// A reachability failure, with the executor's refusal of the first candidate,
-/// when none is accepted.
+/// Picks joint solutions for `grasp` whose motions the executor will accept
+/// ([`ExecutorReach::accepted`]); a reachability failure, with the executor's
+/// refusal of the first candidate, when none is accepted.
 pub fn executable_joints(
-    robot: &Robot,
-    check: &SafetyCheck,
-    config: &ExecutorConfig,
+    executor: &ExecutorReach,
     grasp: &mut PlannedGrasp,
-    current: &ArmJoints,
 ) -> Result<(), PlanFailure> {
     let hand = grasp.preshape_rad.at_spread(grasp.spread_rad);
-    let mut seeds = vec![*current];
-    if let Some(planned) = grasp.pregrasp_joints {
-        // The planner's solution, then its equivalents (the same pose with a
-        // shoulder, elbow or wrist flipped) nearest the arm first: the IK's generic
-        // seeds may have found the branch half a turn away.
-        seeds.push(planned);
-        seeds.extend(robot.arm().equivalents(&planned, current));
-    }
-    // Then the end of the palm's straight line from where it is: a pre-grasp the
-    // executor can reach along the line where a joint-space swing is refused.
-    seeds.extend(pregrasp_line_end(
-        robot,
-        config,
-        current,
-        &grasp.pregrasp_pose,
-    ));
-    let mut first_refusal = None;
-    let mut accepted = None;
-    let _ = robot.ik.solve_with(&grasp.pregrasp_pose, &seeds, |pre| {
-        if robot.collision_at(&pre.joints, &hand).is_some() {
-            return false;
-        }
-        let mut near = vec![pre.joints];
-        near.extend(grasp.joints);
-        let Ok(at) = robot.reach(&grasp.pose, &hand, &near) else {
-            return false;
-        };
-        let request = ExecutionRequest {
-            palm: PoseJson::from(&grasp.pose),
-            pregrasp: PoseJson::from(&grasp.pregrasp_pose),
-            joints_rad: at.joints,
-            pregrasp_joints_rad: pre.joints,
-            spread_rad: grasp.spread_rad,
-            preshape_rad: grasp.preshape_rad,
-            task: None,
-            method: None,
-        };
-        match validate_grasp(check, config, &request, current) {
-            Ok(_) => {
-                accepted = Some((pre.joints, at.joints));
-                true
-            }
-            Err(e) => {
-                first_refusal.get_or_insert(e);
-                false
-            }
-        }
-    });
-    let Some((pre, at)) = accepted else {
-        let detail = match first_refusal {
-            Some(refusal) => format!("no joint solution the executor accepts: {refusal}"),
-            None => "no collision-free joint solution of the pre-grasp and grasp poses".into(),
-        };
-        return Err(PlanFailure {
+    let (pre, at) = executor
+        .accepted(
+            &grasp.pose,
+            &grasp.pregrasp_pose,
+            &hand,
+            grasp.pregrasp_joints,
+            grasp.joints,
+        )
+        .map_err(|detail| PlanFailure {
             cause: FailureCause::Reachability,
             detail,
-        });
-    };
+        })?;
     grasp.pregrasp_joints = Some(pre);
     grasp.joints = Some(at);
     Ok(())
+}
+
+/// The arm's reach as the executor judges it: the robot's checks of each pose, and
+/// for a grasp whose poses pass them, the executor's acceptance of the motions
+/// through them from the arm at `current` ([`Reachability::motions`]). The planner
+/// needs only some IK solution of each pose, and a straight approach from it may
+/// still put the forearm on the table; planning with this (the cell's protocol)
+/// returns an optimum the executor takes. The paper's protocol plans with the
+/// robot alone.
+#[derive(Clone, Copy)]
+pub struct ExecutorReach<'a> {
+    /// The arm.
+    pub robot: &'a Robot,
+    /// The executor's safety checks.
+    pub check: &'a SafetyCheck,
+    /// The executor's motion settings.
+    pub config: &'a ExecutorConfig,
+    /// The arm's joints where the trial's motions start (rad).
+    pub current: ArmJoints,
+}
+
+impl ExecutorReach<'_> {
+    /// Joint solutions (pre-grasp, grasp) of the grasp at `palm` with its pre-grasp
+    /// `pregrasp` and `hand` whose motions from `current` the executor accepts
+    /// ([`validate_grasp`]: pre-grasp move, approach, lift, with its safety checks),
+    /// or the executor's refusal of the first candidate. From its generic seeds the
+    /// planner may have found an IK solution on another branch (shoulder turned by
+    /// half a turn) that the executor's joint-space move could not reach safely, so
+    /// pre-grasp solutions are tried seeded first with `current`, the planner's
+    /// solution `planned_pre` and its equivalents
+    /// ([`crate::robot::kinematics::ArmKinematics::equivalents`]), the end of the
+    /// palm's straight line from `current` ([`pregrasp_line_end`]), then the IK's
+    /// spread of seeds; the grasp is solved near each (and near `planned_at`).
+    pub fn accepted(
+        &self,
+        palm: &Pose,
+        pregrasp: &Pose,
+        hand: &HandPose,
+        planned_pre: Option<ArmJoints>,
+        planned_at: Option<ArmJoints>,
+    ) -> Result<(ArmJoints, ArmJoints), String> {
+        let (robot, current) = (self.robot, &self.current);
+        let mut seeds = vec![*current];
+        if let Some(planned) = planned_pre {
+            // The planner's solution, then its equivalents (the same pose with a
+            // shoulder, elbow or wrist flipped) nearest the arm first: the IK's
+            // generic seeds may have found the branch half a turn away.
+            seeds.push(planned);
+            seeds.extend(robot.arm().equivalents(&planned, current));
+        }
+        // Then the end of the palm's straight line from where it is: a pre-grasp the
+        // executor can reach along the line where a joint-space swing is refused.
+        seeds.extend(pregrasp_line_end(robot, self.config, current, pregrasp));
+        let mut first_refusal = None;
+        let mut accepted = None;
+        let _ = robot.ik.solve_with(pregrasp, &seeds, |pre| {
+            match self.accepted_from(palm, pregrasp, hand, &pre.joints, planned_at) {
+                Ok(joints) => accepted = Some(joints),
+                Err(refusal) => {
+                    first_refusal = first_refusal.take().or(refusal);
+                }
+            }
+            accepted.is_some()
+        });
+        accepted.ok_or_else(|| refused(first_refusal))
+    }
+
+    /// The grasp's joints near `planned_at` and `pre` (a pre-grasp solution) when
+    /// the executor accepts the motions from `pre`; else the executor's refusal, if
+    /// the poses are collision-free.
+    fn accepted_from(
+        &self,
+        palm: &Pose,
+        pregrasp: &Pose,
+        hand: &HandPose,
+        pre: &ArmJoints,
+        planned_at: Option<ArmJoints>,
+    ) -> Result<(ArmJoints, ArmJoints), Option<String>> {
+        let robot = self.robot;
+        if robot.collision_at(pre, hand).is_some() {
+            return Err(None);
+        }
+        let mut near = vec![*pre];
+        near.extend(planned_at);
+        let at = robot.reach(palm, hand, &near).map_err(|_| None)?;
+        let request = ExecutionRequest {
+            palm: PoseJson::from(palm),
+            pregrasp: PoseJson::from(pregrasp),
+            joints_rad: at.joints,
+            pregrasp_joints_rad: *pre,
+            spread_rad: hand.spread_rad,
+            preshape_rad: PreshapeRad(hand.flex_rad),
+            task: None,
+            method: None,
+        };
+        validate_grasp(self.check, self.config, &request, &self.current)
+            .map(|_| (*pre, at.joints))
+            .map_err(|e| Some(e.to_string()))
+    }
+}
+
+/// Why no joint solution of a grasp was accepted, from the executor's first refusal.
+fn refused(first_refusal: Option<String>) -> String {
+    match first_refusal {
+        Some(refusal) => format!("no joint solution the executor accepts: {refusal}"),
+        None => "no collision-free joint solution of the pre-grasp and grasp poses".into(),
+    }
+}
+
+impl Reachability for ExecutorReach<'_> {
+    fn reach(
+        &self,
+        palm: &Pose,
+        hand: &HandPose,
+        seeds: &[ArmJoints],
+    ) -> Result<IkSolution, Unreachable> {
+        Reachability::reach(self.robot, palm, hand, seeds)
+    }
+
+    fn reach_near(
+        &self,
+        palm: &Pose,
+        hand: &HandPose,
+        seeds: &[ArmJoints],
+    ) -> Result<IkSolution, Unreachable> {
+        self.robot.reach_near(palm, hand, seeds)
+    }
+
+    fn repair_near(
+        &self,
+        palm: &Pose,
+        hand: &HandPose,
+        seeds: &[ArmJoints],
+    ) -> Option<(Pose, IkSolution)> {
+        self.robot.repair_near(palm, hand, seeds)
+    }
+
+    fn nearest_reachable(&self, palm: &Pose, hand: &HandPose) -> Option<(Pose, IkSolution)> {
+        self.robot.nearest_reachable(palm, hand)
+    }
+
+    /// The motions from the planner's own solutions `pre` and `at`, else from a
+    /// pre-grasp solved near `current`: a quick check, as the planner asks it of
+    /// every candidate. [`ExecutorReach::accepted`] then searches wider for the
+    /// joints of the chosen grasp (the same first candidates, then more).
+    fn motions(
+        &self,
+        palm: &Pose,
+        pregrasp: &Pose,
+        hand: &HandPose,
+        at: &ArmJoints,
+        pre: &ArmJoints,
+    ) -> Result<(), String> {
+        let planned = self.accepted_from(palm, pregrasp, hand, pre, Some(*at));
+        let Err(first_refusal) = planned else {
+            return Ok(());
+        };
+        let near_arm = self.robot.ik.solve_from(pregrasp, &self.current);
+        if near_arm.converged(self.robot.ik.options()) {
+            let from_arm = self.accepted_from(palm, pregrasp, hand, &near_arm.joints, Some(*at));
+            if from_arm.is_ok() {
+                return Ok(());
+            }
+        }
+        Err(refused(first_refusal))
+    }
 }
 
 /// Runs the plan stage until SIGTERM/SIGINT; databases come from `db_dir`.
@@ -448,12 +590,13 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
             let trial_id = request.trial_id;
             let method = request.method().unwrap_or("?").to_string();
             let started = std::time::Instant::now();
-            let mut planned_ms = f64::NAN;
-            let planned =
-                plan_trial(config, &robot, &hand, &mut dbs, &request, &fits).and_then(|plan| {
-                    planned_ms = started.elapsed().as_secs_f64() * 1e3;
-                    plan.executable(&robot, &safety, &motions, &arm_now)
-                });
+            let executor = ExecutorReach {
+                robot: &robot,
+                check: &safety,
+                config: &motions,
+                current: arm_now,
+            };
+            let planned = plan_trial(config, &executor, &hand, &mut dbs, &request, &fits);
             let msg = match planned {
                 Ok(grasp) => GraspPlan::new(trial_id, monotonic_now_ns(), &grasp, &method)?,
                 Err(failure) => {
@@ -470,7 +613,6 @@ pub fn run(config: &CellConfig, domain: &Domain, db_dir: &Path) -> Result<(), Ce
             tracing::info!(
                 trial_id,
                 ms = started.elapsed().as_secs_f64() * 1e3,
-                planned_ms,
                 "plan published"
             );
         }
@@ -518,6 +660,47 @@ mod tests {
             .contains("nearest"));
     }
 
+    /// The shipped robot with the executor's checks and settings of the default
+    /// configuration, parked.
+    struct Rig {
+        config: CellConfig,
+        robot: Arc<Robot>,
+        check: SafetyCheck,
+        motions: ExecutorConfig,
+    }
+
+    impl Rig {
+        fn new() -> Rig {
+            let config = CellConfig::load(Path::new(crate::config::DEFAULT_CONFIG_PATH)).unwrap();
+            let robot = Arc::new(crate::robot::shipped_robot());
+            let check =
+                SafetyCheck::new(Arc::clone(&robot), SafetyLimits::from_cell(&config, &robot));
+            let motions = ExecutorConfig::from_cell(&config);
+            Rig {
+                config,
+                robot,
+                check,
+                motions,
+            }
+        }
+
+        /// The executor's safety layer with the palm forbidden below `z_m`.
+        fn palm_above(&self, z_m: f64) -> SafetyCheck {
+            let mut limits = SafetyLimits::from_cell(&self.config, &self.robot);
+            limits.min_palm_z_m = z_m;
+            SafetyCheck::new(Arc::clone(&self.robot), limits)
+        }
+
+        fn executor(&self) -> ExecutorReach<'_> {
+            ExecutorReach {
+                robot: &self.robot,
+                check: &self.check,
+                config: &self.motions,
+                current: self.config.robot.park_joints_rad,
+            }
+        }
+    }
+
     /// A top-down grasp over the table at `xyz` with its pre-grasp 10 cm above.
     fn top_grasp(xyz: [f64; 3]) -> PlannedGrasp {
         let pose = crate::geometry::pose_from_params(&[xyz[0], xyz[1], xyz[2], PI, 0.0, 0.0]);
@@ -537,14 +720,9 @@ mod tests {
 
     #[test]
     fn published_joints_are_ones_the_executor_accepts_even_from_a_far_branch() {
-        let robot = Arc::new(crate::robot::shipped_robot());
-        let config = crate::config::CellConfig::load(std::path::Path::new(
-            crate::config::DEFAULT_CONFIG_PATH,
-        ))
-        .unwrap();
-        let check = SafetyCheck::new(Arc::clone(&robot), SafetyLimits::from_cell(&config, &robot));
-        let motions = ExecutorConfig::from_cell(&config);
-        let home = config.robot.park_joints_rad;
+        let rig = Rig::new();
+        let (robot, check, motions) = (&rig.robot, &rig.check, &rig.motions);
+        let home = rig.config.robot.park_joints_rad;
         let mut grasp = top_grasp([0.6, 0.1, 0.2]);
         // The planner's solution on the branch with A1 turned by half a turn.
         let far = robot
@@ -563,10 +741,10 @@ mod tests {
             method: None,
         };
         assert!(
-            validate_grasp(&check, &motions, &from_far, &home).is_err(),
+            validate_grasp(check, motions, &from_far, &home).is_err(),
             "test setup: the far branch is refused"
         );
-        executable_joints(&robot, &check, &motions, &mut grasp, &home).unwrap();
+        executable_joints(&rig.executor(), &mut grasp).unwrap();
         let request = ExecutionRequest {
             palm: PoseJson::from(&grasp.pose),
             pregrasp: PoseJson::from(&grasp.pregrasp_pose),
@@ -577,12 +755,46 @@ mod tests {
             task: None,
             method: None,
         };
-        validate_grasp(&check, &motions, &request, &home).unwrap();
+        validate_grasp(check, motions, &request, &home).unwrap();
         // A grasp with the palm in the table has no solution: a reachability failure.
         let mut low = top_grasp([0.6, 0.1, 0.01]);
-        let failure = executable_joints(&robot, &check, &motions, &mut low, &home).unwrap_err();
+        let failure = executable_joints(&rig.executor(), &mut low).unwrap_err();
         assert_eq!(failure.cause, FailureCause::Reachability, "{failure:?}");
         assert!(low.joints.is_none());
+    }
+
+    /// The cell plans with the executor's judgement of the motions: a top grasp the
+    /// arm reaches, with its pre-grasp, is refused when the safety layer forbids the
+    /// palm on the way down (its lowest palm height raised above the grasp), and
+    /// the refusal names the approach; with the cell's own limits it is accepted.
+    #[test]
+    fn the_executors_reach_refuses_a_grasp_the_arm_reaches_but_cannot_move_through() {
+        let rig = Rig::new();
+        let grasp = top_grasp([0.6, 0.1, 0.2]);
+        let hand = HandPose::OPEN;
+        let at = Reachability::reach(&*rig.robot, &grasp.pose, &hand, &[]).unwrap();
+        let pre =
+            Reachability::reach(&*rig.robot, &grasp.pregrasp_pose, &hand, &[at.joints]).unwrap();
+        let motions = |executor: &ExecutorReach| {
+            executor.motions(
+                &grasp.pose,
+                &grasp.pregrasp_pose,
+                &hand,
+                &at.joints,
+                &pre.joints,
+            )
+        };
+        motions(&rig.executor()).unwrap();
+        let strict = rig.palm_above(0.25);
+        let executor = ExecutorReach {
+            check: &strict,
+            ..rig.executor()
+        };
+        let why = motions(&executor).unwrap_err();
+        assert!(why.contains("approach"), "{why}");
+        let failure = executable_joints(&executor, &mut grasp.clone()).unwrap_err();
+        assert_eq!(failure.cause, FailureCause::Reachability);
+        assert!(failure.detail.contains("approach"), "{}", failure.detail);
     }
 
     /// A refined grasp the executor refuses falls back to its start (the Laplace
@@ -590,60 +802,125 @@ mod tests {
     /// fallback is refused too, the refusal is the refined grasp's.
     #[test]
     fn a_refused_refined_grasp_falls_back_to_its_start() {
-        let robot = Arc::new(crate::robot::shipped_robot());
-        let config = CellConfig::load(Path::new(crate::config::DEFAULT_CONFIG_PATH)).unwrap();
-        let check = SafetyCheck::new(Arc::clone(&robot), SafetyLimits::from_cell(&config, &robot));
-        let motions = ExecutorConfig::from_cell(&config);
-        let home = config.robot.park_joints_rad;
+        let rig = Rig::new();
+        let executor = rig.executor();
         let in_table = top_grasp([0.6, 0.1, 0.01]);
         let start = top_grasp([0.6, 0.1, 0.2]);
-        let refused_alone =
-            executable_joints(&robot, &check, &motions, &mut in_table.clone(), &home).unwrap_err();
+        let refused_alone = executable_joints(&executor, &mut in_table.clone()).unwrap_err();
         let plan = |fallback| TrialPlan {
             grasp: in_table.clone(),
             fallback,
         };
-        let executed = plan(Some(start.clone()))
-            .executable(&robot, &check, &motions, &home)
-            .unwrap();
+        let executed = plan(Some(start.clone())).executable(&executor).unwrap();
         assert_eq!(executed.pose, start.pose);
         assert!(executed.joints.is_some() && executed.pregrasp_joints.is_some());
-        let alone = plan(None)
-            .executable(&robot, &check, &motions, &home)
-            .unwrap_err();
+        let alone = plan(None).executable(&executor).unwrap_err();
         assert_eq!(alone, refused_alone);
         let both = plan(Some(top_grasp([0.6, -0.1, 0.01])))
-            .executable(&robot, &check, &motions, &home)
+            .executable(&executor)
             .unwrap_err();
         assert_eq!(both, refused_alone);
     }
 
-    #[test]
-    fn the_cell_plans_clear_of_the_seen_surface_and_the_papers_protocol_ignores_it() {
-        let config = CellConfig::load(Path::new(crate::config::DEFAULT_CONFIG_PATH)).unwrap();
-        let robot = crate::robot::shipped_robot();
-        let hand = crate::quality::autograsp::tests::hand_of(&robot);
-        let mut dbs = Databases::new(Path::new("db"));
+    /// Three mug models fitted at (0.6, 0) on the table, turned by 0.3 rad.
+    fn mug_fits() -> Fits {
         let on_table = crate::geometry::pose_from_params(&[0.6, 0.0, 0.0, 0.0, 0.0, 0.3]);
         let fits: Vec<crate::ipc::ModelFit> = (0..3)
             .map(|i| crate::ipc::ModelFit::new(i, FitStatus::Converged, &on_table, 1e-5, 1e-5, 0.9))
             .collect();
-        let fits = Fits::new(7, 0, &fits).unwrap();
-        let request = |protocol| {
-            TrialRequest::new(7, 0, "mug", "top", "laplace")
-                .unwrap()
-                .with_protocol(protocol)
-        };
+        Fits::new(7, 0, &fits).unwrap()
+    }
+
+    /// Trial 7's request: the mug's top grasp by Laplace, under `protocol`.
+    fn mug_top(protocol: Protocol) -> TrialRequest {
+        TrialRequest::new(7, 0, "mug", "top", "laplace")
+            .unwrap()
+            .with_protocol(protocol)
+    }
+
+    /// A plan the executor refuses is planned again with the executor's checks in
+    /// the planner's constraint, in the cell's protocol: with a safety layer that
+    /// forbids the palm below 0.25 m, the mug's top grasp (palm lower) is refused,
+    /// and the trial gets a grasp the executor moves through instead. The paper's
+    /// protocol does not plan again: the refusal is its failure.
+    #[test]
+    fn a_refused_plan_is_planned_again_for_motions_the_executor_accepts() {
+        let rig = Rig::new();
+        let hand = crate::quality::autograsp::tests::hand_of(&rig.robot);
+        let mut dbs = Databases::new(Path::new("db"));
+        let fits = mug_fits();
+        let request = mug_top;
         let free = plan_trial(
-            &config,
-            &robot,
+            &rig.config,
+            &rig.executor(),
             &hand,
             &mut dbs,
             &request(Protocol::Cell),
             &fits,
         )
-        .unwrap()
-        .grasp;
+        .unwrap();
+        assert!(
+            free.pose.translation.z < 0.25,
+            "test setup: {:?}",
+            free.pose
+        );
+        let strict = rig.palm_above(0.25);
+        let executor = ExecutorReach {
+            check: &strict,
+            ..rig.executor()
+        };
+        let mut refused = free.clone();
+        refused.joints = None;
+        assert!(executable_joints(&executor, &mut refused).is_err());
+        let cell = |dbs: &mut Databases| {
+            plan_trial(
+                &rig.config,
+                &executor,
+                &hand,
+                dbs,
+                &request(Protocol::Cell),
+                &fits,
+            )
+        };
+        let again = cell(&mut dbs).unwrap();
+        assert!(again.pose.translation.z >= 0.25, "{:?}", again.pose);
+        assert!(again.joints.is_some() && again.pregrasp_joints.is_some());
+        let mut check = again.clone();
+        executable_joints(&executor, &mut check).unwrap();
+        let paper = plan_trial(
+            &rig.config,
+            &executor,
+            &hand,
+            &mut dbs,
+            &request(Protocol::PaperRobot),
+            &fits,
+        )
+        .unwrap_err();
+        assert_eq!(paper.cause, FailureCause::Reachability);
+        assert!(
+            paper.detail.contains("executor accepts"),
+            "{}",
+            paper.detail
+        );
+    }
+
+    #[test]
+    fn the_cell_plans_clear_of_the_seen_surface_and_the_papers_protocol_ignores_it() {
+        let rig = Rig::new();
+        let (config, executor) = (&rig.config, rig.executor());
+        let hand = crate::quality::autograsp::tests::hand_of(&rig.robot);
+        let mut dbs = Databases::new(Path::new("db"));
+        let fits = mug_fits();
+        let request = mug_top;
+        let free = plan_trial(
+            config,
+            &executor,
+            &hand,
+            &mut dbs,
+            &request(Protocol::Cell),
+            &fits,
+        )
+        .unwrap();
         // Seen points filling a 10 cm cube around the free plan's pre-grasp.
         let c = free.pregrasp_pose.translation.vector;
         let mut wall = Vec::new();
@@ -673,26 +950,31 @@ mod tests {
             "test setup: the points block the free plan's approach"
         );
         match plan_trial(
-            &config,
-            &robot,
+            config,
+            &executor,
             &hand,
             &mut dbs,
             &request(Protocol::Cell),
             &blocked,
         ) {
-            Ok(TrialPlan { grasp: clear, .. }) => assert_eq!(
+            Ok(clear) => assert_eq!(
                 seen.intrusion(&clear.pose, &clear.preshape_rad.at_spread(clear.spread_rad)),
                 None
             ),
             Err(failure) => assert_eq!(failure.cause, FailureCause::Reachability),
         }
         let paper = Protocol::PaperRobot;
-        let as_published = plan_trial(&config, &robot, &hand, &mut dbs, &request(paper), &blocked)
-            .unwrap()
-            .grasp;
-        let unblocked = plan_trial(&config, &robot, &hand, &mut dbs, &request(paper), &fits)
-            .unwrap()
-            .grasp;
+        let as_published = plan_trial(
+            config,
+            &executor,
+            &hand,
+            &mut dbs,
+            &request(paper),
+            &blocked,
+        )
+        .unwrap();
+        let unblocked =
+            plan_trial(config, &executor, &hand, &mut dbs, &request(paper), &fits).unwrap();
         assert_eq!(
             as_published.pose, unblocked.pose,
             "the paper plans without it"

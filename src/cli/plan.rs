@@ -2,7 +2,7 @@
 
 use super::emit;
 use crate::category::CategoryDb;
-use crate::cell::plan::TrialPlan;
+use crate::cell::plan::{ExecutorReach, TrialPlan};
 use crate::cloud::io::read_cloud;
 use crate::config::CellConfig;
 use crate::execute::{ExecutionRequest, ExecutorConfig, SafetyCheck, SafetyLimits};
@@ -169,8 +169,9 @@ pub struct PlanArgs {
     /// schema), with joint solutions the executor accepts from --from-joints.
     #[arg(long, value_name = "PLAN_JSON")]
     pub out: Option<PathBuf>,
-    /// Arm joints A1,A2,E1,A3,A4,A5,A6 (rad) the grasp will start from (--out);
-    /// default: the cell's home configuration.
+    /// Arm joints A1,A2,E1,A3,A4,A5,A6 (rad) the grasp will start from (--out's
+    /// joints are ones whose motions from there the executor accepts); default: the
+    /// park position.
     #[arg(long, value_name = "Q1,...,Q7", allow_hyphen_values = true)]
     pub from_joints: Option<String>,
     /// The paper's settings: its kernel scale (s = b = 50 for `simulation`, 700 for
@@ -405,7 +406,26 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
             )
         })
         .transpose()?;
-    let reach = robot.as_deref().map(|r| r as &dyn Reachability);
+    // The planner's reach is the arm's (IK, collisions), as in the plan stage's
+    // first pass; --out's joints are the ones the executor accepts from the start
+    // joints (the plan stage's second pass, a re-plan for them, is not made here).
+    let current = start_joints(&cell, args.from_joints.as_deref())?;
+    let checks = robot.as_ref().map(|robot| {
+        (
+            SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(&cell, robot)),
+            ExecutorConfig::from_cell(&cell),
+        )
+    });
+    let executor = robot
+        .as_deref()
+        .zip(checks.as_ref())
+        .map(|(robot, (check, config))| ExecutorReach {
+            robot,
+            check,
+            config,
+            current,
+        });
+    let reach = executor.as_ref().map(|e| e.robot as &dyn Reachability);
     let outcome = plan_with(&fits, &grasps, &args.task, &options, reach, seen.as_ref())
         .with_context(|| format!("planning task {:?}", args.task))?;
     let refined = match (args.refine_sim, &db) {
@@ -427,7 +447,7 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
             Some(refine_over_db(&problem, &outcome.plan.grasp, &sim)?)
         }
     };
-    if let (Some(out), Some(robot)) = (&args.out, &robot) {
+    if let (Some(out), Some(executor)) = (&args.out, &executor) {
         let (plan, method) = match &refined {
             Some(r) => (
                 TrialPlan {
@@ -445,15 +465,7 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
             ),
         };
         let task = &outcome.plan.task;
-        write_plan(
-            &cell,
-            robot,
-            plan,
-            task,
-            method,
-            args.from_joints.as_deref(),
-            out,
-        )?;
+        write_plan(executor, plan, task, method, out)?;
     }
     let report = PlanReport {
         fits: fits_path,
@@ -530,28 +542,30 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Writes `plan`'s grasp (planned for `task` by `method`) for the executor
-/// ([`ExecutionRequest`]) to `out`, with joint solutions whose moves from
-/// `from_joints` (default: home) the executor accepts — the plan stage's own choice
-/// ([`TrialPlan::executable`]).
-fn write_plan(
-    cell: &CellConfig,
-    robot: &Arc<Robot>,
-    plan: TrialPlan,
-    task: &str,
-    method: &str,
-    from_joints: Option<&str>,
-    out: &Path,
-) -> anyhow::Result<()> {
-    let current: ArmJoints = match from_joints {
+/// The arm's joints the grasp's motions start from: `--from-joints` (seven numbers,
+/// rad), else the park position.
+fn start_joints(cell: &CellConfig, from_joints: Option<&str>) -> anyhow::Result<ArmJoints> {
+    Ok(match from_joints {
         Some(text) => parse_numbers(text, 7, "--from-joints")?
             .try_into()
             .expect("seven numbers"),
         None => cell.robot.park_joints_rad,
-    };
-    let check = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(cell, robot));
+    })
+}
+
+/// Writes `plan`'s grasp (planned for `task` by `method`) for the executor
+/// ([`ExecutionRequest`]) to `out`, with joint solutions whose moves from the start
+/// joints the executor accepts — the plan stage's own choice
+/// ([`TrialPlan::executable`]).
+fn write_plan(
+    executor: &ExecutorReach,
+    plan: TrialPlan,
+    task: &str,
+    method: &str,
+    out: &Path,
+) -> anyhow::Result<()> {
     let grasp = plan
-        .executable(robot, &check, &ExecutorConfig::from_cell(cell), &current)
+        .executable(executor)
         .map_err(|f| anyhow::anyhow!("--out {}: {}", out.display(), f.detail))?;
     let request = ExecutionRequest::from_planned(&grasp, task, method)?;
     write_atomically(out, serde_json::to_string_pretty(&request)?.as_bytes())

@@ -21,7 +21,7 @@
 use super::objects::UserObject;
 use crate::category::CategoryDb;
 use crate::cell::perceive::{perceive_trial, register_params};
-use crate::cell::plan::{plan_trial, Databases, PlanFailure};
+use crate::cell::plan::{plan_trial, Databases, ExecutorReach, PlanFailure};
 use crate::cell::setup::novel_object_in;
 use crate::cloud::segment::SegmentParams;
 use crate::config::CellConfig;
@@ -869,22 +869,20 @@ impl<'a> NovelRun<'a> {
         let request = TrialRequest::new(placed.trial_id, 0, object.category.name(), task, method)
             .map_err(|e| object.fail(e.to_string()))?
             .with_protocol(self.protocol);
+        let executor = ExecutorReach {
+            robot: &cell.robot,
+            check: &self.safety,
+            config: &self.motions,
+            current: cell.config.robot.park_joints_rad,
+        };
         Ok(plan_trial(
             cell.config,
-            &cell.robot,
+            &executor,
             cell.hand,
             dbs,
             &request,
             &placed.fits,
-        )
-        .and_then(|plan| {
-            plan.executable(
-                &cell.robot,
-                &self.safety,
-                &self.motions,
-                &self.cell.config.robot.park_joints_rad,
-            )
-        }))
+        ))
     }
 
     /// Step 4, execution of `grasp` on `placed`: its joints plus the lab's errors,

@@ -38,8 +38,17 @@
 //!    reach the candidate), scores the repaired pose's `-ln f` plus its distance to
 //!    the candidate, and is `+inf` when nothing reachable is found — so an unreachable
 //!    pose never scores, and the search slides along the boundary instead of stalling
-//!    on it. The best repaired pose is the answer, confirmed by the full check and
-//!    reported with the unconstrained optimum it replaces.
+//!    on it. A repaired pose better than the best so far must also pass the motions
+//!    check (below), else it scores `+inf` too. The best repaired pose is the
+//!    answer, confirmed by the full check and reported with the unconstrained
+//!    optimum it replaces.
+//!
+//! **Motions.** Every check of a grasp whose two poses are reached ends with
+//! [`Reachability::motions`]: whether the arm can move through them (to the
+//! pre-grasp, along the approach, the lift). The robot alone accepts every pair; the
+//! cell's protocol plans with the executor's own checks
+//! ([`crate::cell::plan::ExecutorReach`]), so that an approach that would put the
+//! forearm on the table is infeasible like an unreachable pose.
 //!
 //! The hand is in the pre-shape (open for most grasps) and at the spread of the
 //! **dominant grasp** — the example grasp whose term of eq. 2 is largest at the
@@ -141,7 +150,8 @@ fn pose_json<S: Serializer>(pose: &Pose, s: S) -> Result<S::Ok, S::Error> {
     PoseJson::from(pose).serialize(s)
 }
 
-/// Which of the two poses of a grasp could not be reached.
+/// Which part of a grasp could not be done: one of its two poses, or the motions
+/// through them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Stage {
@@ -149,6 +159,9 @@ pub enum Stage {
     Grasp,
     /// The pre-grasp pose.
     Pregrasp,
+    /// The move to the pre-grasp, the approach or the lift
+    /// ([`Reachability::motions`]).
+    Motions,
 }
 
 /// What stops a grasp.
@@ -159,6 +172,8 @@ pub enum Blocked {
     Unreachable(UnreachableReason),
     /// The open hand enters the seen surface at the grasp or along its approach.
     SeenSurface(Intrusion),
+    /// The arm reaches both poses but cannot move through them (why).
+    Motions(String),
 }
 
 impl std::fmt::Display for Blocked {
@@ -166,6 +181,7 @@ impl std::fmt::Display for Blocked {
         match self {
             Blocked::Unreachable(r) => write!(f, "unreachable: {r}"),
             Blocked::SeenSurface(i) => write!(f, "blocked by the seen surface: {i}"),
+            Blocked::Motions(why) => write!(f, "refused: {why}"),
         }
     }
 }
@@ -184,6 +200,7 @@ impl std::fmt::Display for Infeasible {
         let stage = match self.stage {
             Stage::Grasp => "grasp",
             Stage::Pregrasp => "pre-grasp",
+            Stage::Motions => "motions",
         };
         write!(f, "{stage} {}", self.reason)
     }
@@ -400,11 +417,30 @@ impl Checker<'_> {
             .chain(pre_seeds.iter().copied())
             .collect();
         let pregrasp = reach(&pre, &pre_seeds).map_err(fail(Stage::Pregrasp))?;
+        self.motions(pose, &pre, hand, &grasp, &pregrasp)?;
         Ok(Feasible { grasp, pregrasp })
     }
 
+    /// [`Reachability::motions`] through a grasp whose poses are reached.
+    fn motions(
+        &mut self,
+        pose: &Pose,
+        pre: &Pose,
+        hand: &HandPose,
+        grasp: &IkSolution,
+        pregrasp: &IkSolution,
+    ) -> Result<(), Infeasible> {
+        self.reach
+            .motions(pose, pre, hand, &grasp.joints, &pregrasp.joints)
+            .map_err(|why| Infeasible {
+                stage: Stage::Motions,
+                reason: Blocked::Motions(why),
+            })
+    }
+
     /// The quick check with repair: a reachable grasp at or near `pose` (see
-    /// [`Reachability::repair_near`]) whose pre-grasp passes the quick check.
+    /// [`Reachability::repair_near`]) whose pre-grasp passes the quick check. The
+    /// motions through them are not checked here (see [`Problem::constrained_run`]).
     fn repair(
         &mut self,
         pose: &Pose,
@@ -543,10 +579,21 @@ impl Problem<'_> {
                     if !g.is_finite() {
                         return f64::INFINITY;
                     }
-                    last = f;
                     if g < best.0.g {
+                        // Only a pose that could become the answer pays for the
+                        // check of the motions through it (the executor's, in the
+                        // cell): one the arm cannot move through scores nothing.
+                        let hand = self.hand_at(&reached);
+                        let pre = pregrasp_pose(&reached, checker.offset_m);
+                        if checker
+                            .motions(&reached, &pre, &hand, &f.grasp, &f.pregrasp)
+                            .is_err()
+                        {
+                            return f64::INFINITY;
+                        }
                         best = (Point { g, pose: reached }, f);
                     }
+                    last = f;
                     let (dp, dr) = pose_error(&pose, &reached);
                     g + dp / 0.01 + dr / 0.1
                 },
@@ -1337,6 +1384,73 @@ mod tests {
             single.unrepaired.as_ref().unwrap().unreachable.stage,
             Stage::Grasp
         );
+    }
+
+    /// Reachable everywhere, but the arm cannot move through a grasp unless
+    /// `movable(palm)`.
+    struct Moves<F: Fn(&Pose) -> bool + Sync>(F);
+
+    impl<F: Fn(&Pose) -> bool + Sync> Reachability for Moves<F> {
+        fn reach(
+            &self,
+            palm: &Pose,
+            hand: &HandPose,
+            seeds: &[ArmJoints],
+        ) -> Result<IkSolution, Unreachable> {
+            Region(|_: &Pose| true).reach(palm, hand, seeds)
+        }
+
+        fn motions(
+            &self,
+            palm: &Pose,
+            _pregrasp: &Pose,
+            _hand: &HandPose,
+            _at: &ArmJoints,
+            _pre: &ArmJoints,
+        ) -> Result<(), String> {
+            if (self.0)(palm) {
+                Ok(())
+            } else {
+                Err("approach refused".into())
+            }
+        }
+    }
+
+    /// A grasp whose poses the arm reaches but whose motions it cannot make (the
+    /// executor refuses the approach) is infeasible like an unreachable one: the
+    /// plan and best single take the best grasp the arm can move through.
+    #[test]
+    fn a_grasp_the_arm_cannot_move_through_is_infeasible() {
+        let (fits, grasps) = single_grasp([0.01, 0.01, 0.01, 0.1, 0.1, 0.1]);
+        let options = PlanOptions::with_kernel(Kernel::LAPLACE_DEFAULT);
+        let free = plan(
+            &fits,
+            &grasps,
+            "top",
+            &options,
+            Some(&Moves(|_: &Pose| true)),
+        )
+        .unwrap();
+        assert!((free.plan.grasp.pose.translation.x - 0.65).abs() < 1e-3);
+        assert!(free.plan.unconstrained_optimum.is_none());
+        // The grasp is at x = 0.65; the arm moves through it only at x <= 0.63.
+        let moves = Moves(|p: &Pose| p.translation.x <= 0.63);
+        let out = plan(&fits, &grasps, "top", &options, Some(&moves)).unwrap();
+        let unc = out.plan.unconstrained_optimum.as_ref().expect("refused");
+        assert_eq!(unc.unreachable.stage, Stage::Motions);
+        assert_eq!(
+            unc.unreachable.reason,
+            Blocked::Motions("approach refused".into())
+        );
+        assert_eq!(
+            unc.unreachable.to_string(),
+            "motions refused: approach refused"
+        );
+        for g in [&out.plan.grasp, &out.best_single.grasp] {
+            assert!(g.reachable && g.joints.is_some(), "{g:?}");
+            let x = g.pose.translation.x;
+            assert!(x <= 0.63 && x > 0.62, "{x}");
+        }
     }
 
     /// Issue 19: best single gets a reachable grasp where one exists near its

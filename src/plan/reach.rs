@@ -47,6 +47,21 @@ pub trait Reachability: Sync {
     fn nearest_reachable(&self, _palm: &Pose, _hand: &HandPose) -> Option<(Pose, IkSolution)> {
         None
     }
+
+    /// Whether the arm can also move through the grasp at `palm` whose pre-grasp
+    /// `pregrasp` it reaches (at joints `at` and `pre`): the move to the pre-grasp,
+    /// the approach and the lift. `Err` says why not. By default reaching both poses
+    /// is enough; the cell's protocol asks the executor ([`crate::cell::plan`]).
+    fn motions(
+        &self,
+        _palm: &Pose,
+        _pregrasp: &Pose,
+        _hand: &HandPose,
+        _at: &ArmJoints,
+        _pre: &ArmJoints,
+    ) -> Result<(), String> {
+        Ok(())
+    }
 }
 
 impl Reachability for Robot {

@@ -562,7 +562,8 @@ fn table_stop<'a>(
 }
 
 /// The planned grasp at `pose` when it is feasible (reachable with its pre-grasp,
-/// seeded from `near`'s joints, and clear of the seen surface).
+/// seeded from `near`'s joints, with motions the arm can make, and clear of the
+/// seen surface).
 fn feasible(
     near: &PlannedGrasp,
     pose: Pose,
@@ -587,6 +588,8 @@ fn feasible(
             let mut pre_seeds = vec![at.joints];
             pre_seeds.extend(near.pregrasp_joints);
             let pre = r.reach(&pregrasp, &hand, &pre_seeds).ok()?;
+            r.motions(&pose, &pregrasp, &hand, &at.joints, &pre.joints)
+                .ok()?;
             (Some(at.joints), Some(pre.joints))
         }
     };

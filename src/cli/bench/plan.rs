@@ -1,6 +1,6 @@
 //! `cell bench plan`: grasp planning time per kernel, with reachability.
 
-use crate::cell::plan::executable_joints;
+use crate::cell::plan::{executable_joints, ExecutorReach};
 use crate::cli::emit;
 use crate::cli::plan::load_db;
 use crate::config::CellConfig;
@@ -159,6 +159,13 @@ fn sim_bench(
     let safety = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(cell, robot));
     let motions = ExecutorConfig::from_cell(cell);
     let robot: &Robot = robot;
+    // The executor's checks of the motions from the park position.
+    let executor = ExecutorReach {
+        robot,
+        check: &safety,
+        config: &motions,
+        current: cell.robot.park_joints_rad,
+    };
     let (mut plain, mut total, mut refine_ms) = (Vec::new(), Vec::new(), Vec::new());
     let (mut cpu_ms, mut executable_ms, mut planned) = (Vec::new(), Vec::new(), Vec::new());
     let (mut before, mut after, mut evals) = (Vec::new(), Vec::new(), Vec::new());
@@ -226,14 +233,7 @@ fn sim_bench(
         total.push(t + rt);
         let mut grasp = refined.grasp.clone();
         let start = Instant::now();
-        let executable = executable_joints(
-            robot,
-            &safety,
-            &motions,
-            &mut grasp,
-            &cell.robot.park_joints_rad,
-        )
-        .is_ok();
+        let executable = executable_joints(&executor, &mut grasp).is_ok();
         executable_ms.push(start.elapsed().as_secs_f64() * 1e3);
         planned.push((out.plan.grasp, grasp, executable));
         before.push(refined.start_mean_epsilon);
