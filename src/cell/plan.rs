@@ -849,13 +849,12 @@ mod tests {
         let hand = crate::quality::autograsp::tests::hand_of(&rig.robot);
         let mut dbs = Databases::new(Path::new("db"));
         let fits = mug_fits();
-        let request = mug_top;
         let free = plan_trial(
             &rig.config,
             &rig.executor(),
             &hand,
             &mut dbs,
-            &request(Protocol::Cell),
+            &mug_top(Protocol::Cell),
             &fits,
         )
         .unwrap();
@@ -869,20 +868,16 @@ mod tests {
             check: &strict,
             ..rig.executor()
         };
-        let mut refused = free.clone();
-        refused.joints = None;
-        assert!(executable_joints(&executor, &mut refused).is_err());
-        let cell = |dbs: &mut Databases| {
-            plan_trial(
-                &rig.config,
-                &executor,
-                &hand,
-                dbs,
-                &request(Protocol::Cell),
-                &fits,
-            )
-        };
-        let again = cell(&mut dbs).unwrap();
+        assert!(executable_joints(&executor, &mut free.clone()).is_err());
+        let again = plan_trial(
+            &rig.config,
+            &executor,
+            &hand,
+            &mut dbs,
+            &mug_top(Protocol::Cell),
+            &fits,
+        )
+        .unwrap();
         assert!(again.pose.translation.z >= 0.25, "{:?}", again.pose);
         assert!(again.joints.is_some() && again.pregrasp_joints.is_some());
         let mut check = again.clone();
@@ -892,7 +887,7 @@ mod tests {
             &executor,
             &hand,
             &mut dbs,
-            &request(Protocol::PaperRobot),
+            &mug_top(Protocol::PaperRobot),
             &fits,
         )
         .unwrap_err();

@@ -407,25 +407,9 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
         })
         .transpose()?;
     // The planner's reach is the arm's (IK, collisions), as in the plan stage's
-    // first pass; --out's joints are the ones the executor accepts from the start
-    // joints (the plan stage's second pass, a re-plan for them, is not made here).
-    let current = start_joints(&cell, args.from_joints.as_deref())?;
-    let checks = robot.as_ref().map(|robot| {
-        (
-            SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(&cell, robot)),
-            ExecutorConfig::from_cell(&cell),
-        )
-    });
-    let executor = robot
-        .as_deref()
-        .zip(checks.as_ref())
-        .map(|(robot, (check, config))| ExecutorReach {
-            robot,
-            check,
-            config,
-            current,
-        });
-    let reach = executor.as_ref().map(|e| e.robot as &dyn Reachability);
+    // first pass; the plan stage's second pass (a re-plan for motions the executor
+    // accepts) is not made here.
+    let reach = robot.as_deref().map(|r| r as &dyn Reachability);
     let outcome = plan_with(&fits, &grasps, &args.task, &options, reach, seen.as_ref())
         .with_context(|| format!("planning task {:?}", args.task))?;
     let refined = match (args.refine_sim, &db) {
@@ -447,7 +431,7 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
             Some(refine_over_db(&problem, &outcome.plan.grasp, &sim)?)
         }
     };
-    if let (Some(out), Some(executor)) = (&args.out, &executor) {
+    if let (Some(out), Some(robot)) = (&args.out, &robot) {
         let (plan, method) = match &refined {
             Some(r) => (
                 TrialPlan {
@@ -465,7 +449,15 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
             ),
         };
         let task = &outcome.plan.task;
-        write_plan(executor, plan, task, method, out)?;
+        write_plan(
+            &cell,
+            robot,
+            plan,
+            task,
+            method,
+            args.from_joints.as_deref(),
+            out,
+        )?;
     }
     let report = PlanReport {
         fits: fits_path,
@@ -542,30 +534,34 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// The arm's joints the grasp's motions start from: `--from-joints` (seven numbers,
-/// rad), else the park position.
-fn start_joints(cell: &CellConfig, from_joints: Option<&str>) -> anyhow::Result<ArmJoints> {
-    Ok(match from_joints {
+/// Writes `plan`'s grasp (planned for `task` by `method`) for the executor
+/// ([`ExecutionRequest`]) to `out`, with joint solutions whose moves from
+/// `from_joints` (default: the park position) the executor accepts — the plan
+/// stage's own choice ([`TrialPlan::executable`]).
+fn write_plan(
+    cell: &CellConfig,
+    robot: &Arc<Robot>,
+    plan: TrialPlan,
+    task: &str,
+    method: &str,
+    from_joints: Option<&str>,
+    out: &Path,
+) -> anyhow::Result<()> {
+    let current: ArmJoints = match from_joints {
         Some(text) => parse_numbers(text, 7, "--from-joints")?
             .try_into()
             .expect("seven numbers"),
         None => cell.robot.park_joints_rad,
-    })
-}
-
-/// Writes `plan`'s grasp (planned for `task` by `method`) for the executor
-/// ([`ExecutionRequest`]) to `out`, with joint solutions whose moves from the start
-/// joints the executor accepts — the plan stage's own choice
-/// ([`TrialPlan::executable`]).
-fn write_plan(
-    executor: &ExecutorReach,
-    plan: TrialPlan,
-    task: &str,
-    method: &str,
-    out: &Path,
-) -> anyhow::Result<()> {
+    };
+    let check = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(cell, robot));
+    let executor = ExecutorReach {
+        robot,
+        check: &check,
+        config: &ExecutorConfig::from_cell(cell),
+        current,
+    };
     let grasp = plan
-        .executable(executor)
+        .executable(&executor)
         .map_err(|f| anyhow::anyhow!("--out {}: {}", out.display(), f.detail))?;
     let request = ExecutionRequest::from_planned(&grasp, task, method)?;
     write_atomically(out, serde_json::to_string_pretty(&request)?.as_bytes())
