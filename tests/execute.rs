@@ -552,13 +552,9 @@ fn cell_execute(config: &Path, plan: &Path, extra: &[&str]) -> (bool, serde_json
     (out.status.success(), json)
 }
 
-/// Plan then execute: `cell plan --out p.json` writes the plan `cell execute --plan
-/// p.json` runs, unchanged (one schema), on the shipped mug database.
-#[test]
-fn cell_plan_out_then_cell_execute_runs_the_planned_grasp() {
-    let dir = TempDir::new("execute-plan-then-execute").unwrap();
-    let cell = CellConfig::load(&config_path()).unwrap();
-    let config = private_config(&dir, &cell);
+/// Fits of every model of the shipped mug database at `xyz` turned by `yaw_rad`,
+/// written to `dir/name` for `cell plan --fits`.
+fn mug_fits(dir: &Path, name: &str, xyz: [f64; 3], yaw_rad: f64) -> PathBuf {
     let db = Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug");
     let models = graspcell::category::CategoryDb::load(&db)
         .unwrap()
@@ -569,31 +565,53 @@ fn cell_plan_out_then_cell_execute_runs_the_planned_grasp() {
         .map(|m| {
             serde_json::json!({
                 "name": m.name,
-                "base_from_model": {"xyz": [0.55, 0.05, 0.0], "rpy": [0.0, 0.0, 2.0]},
+                "base_from_model": {"xyz": xyz, "rpy": [0.0, 0.0, yaw_rad]},
                 "eps_m2": 1e-5,
                 "sigma_m2": 2e-6,
             })
         })
         .collect();
-    let fits_path = dir.join("fits.json");
-    std::fs::write(&fits_path, serde_json::json!({ "fits": fits }).to_string()).unwrap();
-    let plan_path = dir.join("p.json");
+    let path = dir.join(name);
+    std::fs::write(&path, serde_json::json!({ "fits": fits }).to_string()).unwrap();
+    path
+}
+
+/// `cell plan --task TASK --db db/mug --fits FITS --out OUT` and `extra`: its exit
+/// status, stdout and stderr.
+fn cell_plan_out(
+    config: &Path,
+    task: &str,
+    fits: &Path,
+    out: &Path,
+    extra: &[&str],
+) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_cell"))
         .arg("--config")
-        .arg(&config)
-        .args(["plan", "--task", "top", "--db"])
-        .arg(&db)
+        .arg(config)
+        .args(["plan", "--task", task, "--db"])
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("db/mug"))
         .arg("--fits")
-        .arg(&fits_path)
+        .arg(fits)
         .arg("--out")
-        .arg(&plan_path)
+        .arg(out)
+        .args(extra)
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
+    (out.status.success(), text(&out.stdout), text(&out.stderr))
+}
+
+/// Plan then execute: `cell plan --out p.json` writes the plan `cell execute --plan
+/// p.json` runs, unchanged (one schema), on the shipped mug database.
+#[test]
+fn cell_plan_out_then_cell_execute_runs_the_planned_grasp() {
+    let dir = TempDir::new("execute-plan-then-execute").unwrap();
+    let cell = CellConfig::load(&config_path()).unwrap();
+    let config = private_config(&dir, &cell);
+    let fits_path = mug_fits(&dir, "fits.json", [0.55, 0.05, 0.0], 2.0);
+    let plan_path = dir.join("p.json");
+    let (ok, _, stderr) = cell_plan_out(&config, "top", &fits_path, &plan_path, &[]);
+    assert!(ok, "{stderr}");
     let plan = ExecutionRequest::load(&plan_path).unwrap();
     assert_eq!(plan.task.as_deref(), Some("top"));
     assert_eq!(plan.method.as_deref(), Some("laplace"));
@@ -610,6 +628,47 @@ fn cell_plan_out_then_cell_execute_runs_the_planned_grasp() {
             plan.palm
         );
     }
+}
+
+/// A mug at x = 0.7 m with its handle turned to +y: the handle grasp the arm reaches
+/// best is refused by the executor (its straight approach puts the forearm on the
+/// table). `cell plan --out` plans again with the executor's checks in the
+/// planner's constraint, as the plan stage does, and writes a plan `cell execute`
+/// runs; with `--paper` the refusal is the answer, and nothing is written.
+#[test]
+fn cell_plan_out_plans_again_when_the_executor_refuses_the_motions() {
+    let dir = TempDir::new("execute-plan-again").unwrap();
+    let cell = CellConfig::load(&config_path()).unwrap();
+    let config = private_config(&dir, &cell);
+    let fits_path = mug_fits(&dir, "fits.json", [0.7, 0.0, 0.0], PI / 2.0);
+    let plan_path = dir.join("p.json");
+    let (ok, stdout, stderr) = cell_plan_out(&config, "handle", &fits_path, &plan_path, &[]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stdout.contains("first plan refused by the executor")
+            && stdout.contains("lbr_link5 collides with the table"),
+        "{stdout}"
+    );
+    let plan = ExecutionRequest::load(&plan_path).unwrap();
+    assert_eq!(plan.task.as_deref(), Some("handle"));
+    let (ok, json) = cell_execute(&config, &plan_path, &[]);
+    assert!(ok, "{json:#}");
+    assert_eq!(json["outcome"], "success", "{json:#}");
+
+    let paper_path = dir.join("paper.json");
+    let (ok, _, stderr) = cell_plan_out(
+        &config,
+        "handle",
+        &fits_path,
+        &paper_path,
+        &["--paper", "robot"],
+    );
+    assert!(!ok, "the paper's protocol does not plan again");
+    assert!(
+        stderr.contains("executor accepts") || stderr.contains("joint solution"),
+        "{stderr}"
+    );
+    assert!(!paper_path.exists());
 }
 
 #[test]

@@ -166,7 +166,11 @@ pub struct PlanArgs {
     #[arg(long, conflicts_with = "out")]
     pub no_reach: bool,
     /// Write the planned grasp as a plan for `cell execute --plan` (the executor's
-    /// schema), with joint solutions the executor accepts from --from-joints.
+    /// schema), with joint solutions the executor accepts from --from-joints. When
+    /// the executor refuses the motions of the planned grasp (e.g. an approach that
+    /// puts the forearm on the table), the task is planned again with the
+    /// executor's checks in the planner's constraint, as `cell demo` and campaigns
+    /// do (not with --paper, which reports the refusal).
     #[arg(long, value_name = "PLAN_JSON")]
     pub out: Option<PathBuf>,
     /// Arm joints A1,A2,E1,A3,A4,A5,A6 (rad) the grasp will start from (--out's
@@ -231,6 +235,11 @@ struct PlanReport<'a> {
     seen_points: Option<usize>,
     /// The plan refined in the simulator (--refine-sim).
     laplace_sim: Option<Refined>,
+    /// With --out: the executor's refusal of the first plan's motions, when the
+    /// task was planned again with them in the planner's constraint (the plan
+    /// reported is the second).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    planned_again_after: Option<String>,
     #[serde(flatten)]
     outcome: PlanOutcome,
 }
@@ -406,58 +415,75 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
             )
         })
         .transpose()?;
-    // The planner's reach is the arm's (IK, collisions), as in the plan stage's
-    // first pass; the plan stage's second pass (a re-plan for motions the executor
-    // accepts) is not made here.
-    let reach = robot.as_deref().map(|r| r as &dyn Reachability);
-    let outcome = plan_with(&fits, &grasps, &args.task, &options, reach, seen.as_ref())
-        .with_context(|| format!("planning task {:?}", args.task))?;
-    let refined = match (args.refine_sim, &db) {
-        (false, _) => None,
-        (true, None) => anyhow::bail!("--refine-sim needs --db (the models' meshes)"),
-        (true, Some(db)) => {
-            let problem = DbProblem {
-                db,
-                fits: &fits,
-                grasps: &grasps,
-                task: &args.task,
-                options: &options,
-                hand: &hand,
-                reach,
-                seen: seen.as_ref(),
-                table_height_m: Some(cell.table.height_m),
+    // The planner's reach is the arm's (IK, collisions); with --out, a plan whose
+    // motions the executor refuses is planned again with the executor's checks in
+    // the planner's constraint, as the plan stage does ([`plan_trial`]).
+    let plan =
+        |reach: Option<&dyn Reachability>| -> anyhow::Result<(PlanOutcome, Option<Refined>)> {
+            let outcome = plan_with(&fits, &grasps, &args.task, &options, reach, seen.as_ref())
+                .with_context(|| format!("planning task {:?}", args.task))?;
+            let refined = match (args.refine_sim, &db) {
+                (false, _) => None,
+                (true, None) => anyhow::bail!("--refine-sim needs --db (the models' meshes)"),
+                (true, Some(db)) => {
+                    let problem = DbProblem {
+                        db,
+                        fits: &fits,
+                        grasps: &grasps,
+                        task: &args.task,
+                        options: &options,
+                        hand: &hand,
+                        reach,
+                        seen: seen.as_ref(),
+                        table_height_m: Some(cell.table.height_m),
+                    };
+                    let sim = SimRefineOptions::for_cell(&cell);
+                    Some(refine_over_db(&problem, &outcome.plan.grasp, &sim)?)
+                }
             };
-            let sim = SimRefineOptions::for_cell(&cell);
-            Some(refine_over_db(&problem, &outcome.plan.grasp, &sim)?)
-        }
-    };
-    if let (Some(out), Some(robot)) = (&args.out, &robot) {
-        let (plan, method) = match &refined {
-            Some(r) => (
-                TrialPlan {
-                    grasp: r.grasp.clone(),
-                    fallback: Some(outcome.plan.grasp.clone()),
-                },
-                "laplace-sim",
-            ),
-            None => (
-                TrialPlan {
-                    grasp: outcome.plan.grasp.clone(),
-                    fallback: None,
-                },
-                outcome.plan.kernel.name(),
-            ),
+            Ok((outcome, refined))
         };
-        let task = &outcome.plan.task;
-        write_plan(
-            &cell,
+    let (mut outcome, mut refined) = plan(robot.as_deref().map(|r| r as &dyn Reachability))?;
+    let mut first_refusal = None;
+    if let (Some(out), Some(robot)) = (&args.out, &robot) {
+        let current: ArmJoints = match args.from_joints.as_deref() {
+            Some(text) => parse_numbers(text, 7, "--from-joints")?
+                .try_into()
+                .expect("seven numbers"),
+            None => cell.robot.park_joints_rad,
+        };
+        let check = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(&cell, robot));
+        let executor = ExecutorReach {
             robot,
-            plan,
-            task,
-            method,
-            args.from_joints.as_deref(),
-            out,
-        )?;
+            check: &check,
+            config: &ExecutorConfig::from_cell(&cell),
+            current,
+        };
+        let grasp = match trial_plan(&outcome, &refined).executable(&executor) {
+            Ok(grasp) => grasp,
+            Err(refusal) if args.paper.is_none() => {
+                (outcome, refined) = plan(Some(&executor))?;
+                let again = trial_plan(&outcome, &refined).executable(&executor);
+                let grasp = again.map_err(|second| {
+                    anyhow::anyhow!(
+                        "--out {}: {}; planned again for motions the executor accepts: {}",
+                        out.display(),
+                        refusal.detail,
+                        second.detail
+                    )
+                })?;
+                first_refusal = Some(refusal.detail);
+                grasp
+            }
+            Err(refusal) => anyhow::bail!("--out {}: {}", out.display(), refusal.detail),
+        };
+        let method = match &refined {
+            Some(_) => "laplace-sim",
+            None => outcome.plan.kernel.name(),
+        };
+        let request = ExecutionRequest::from_planned(&grasp, &outcome.plan.task, method)?;
+        write_atomically(out, serde_json::to_string_pretty(&request)?.as_bytes())
+            .with_context(|| format!("writing {}", out.display()))?;
     }
     let report = PlanReport {
         fits: fits_path,
@@ -469,6 +495,7 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
         paper: args.paper,
         seen_points: seen.as_ref().map(|s| s.len()),
         laplace_sim: refined,
+        planned_again_after: first_refusal,
         outcome,
     };
     emit(args.json, &report, |r| {
@@ -496,6 +523,11 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
         } else if !r.unregistered.is_empty() {
             let names: Vec<&str> = r.unregistered.iter().map(|u| u.model.as_str()).collect();
             text += &format!("left out (registration failed): {}\n", names.join(", "));
+        }
+        if let Some(refusal) = &r.planned_again_after {
+            text += &format!(
+                "first plan refused by the executor ({refusal}); planned again for motions it accepts\n"
+            );
         }
         text += &format!(
             "task {} with {} over {} grasps ({} evaluations, {} reach checks)\n",
@@ -534,37 +566,17 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Writes `plan`'s grasp (planned for `task` by `method`) for the executor
-/// ([`ExecutionRequest`]) to `out`, with joint solutions whose moves from
-/// `from_joints` (default: the park position) the executor accepts — the plan
-/// stage's own choice ([`TrialPlan::executable`]).
-fn write_plan(
-    cell: &CellConfig,
-    robot: &Arc<Robot>,
-    plan: TrialPlan,
-    task: &str,
-    method: &str,
-    from_joints: Option<&str>,
-    out: &Path,
-) -> anyhow::Result<()> {
-    let current: ArmJoints = match from_joints {
-        Some(text) => parse_numbers(text, 7, "--from-joints")?
-            .try_into()
-            .expect("seven numbers"),
-        None => cell.robot.park_joints_rad,
-    };
-    let check = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(cell, robot));
-    let executor = ExecutorReach {
-        robot,
-        check: &check,
-        config: &ExecutorConfig::from_cell(cell),
-        current,
-    };
-    let grasp = plan
-        .executable(&executor)
-        .map_err(|f| anyhow::anyhow!("--out {}: {}", out.display(), f.detail))?;
-    let request = ExecutionRequest::from_planned(&grasp, task, method)?;
-    write_atomically(out, serde_json::to_string_pretty(&request)?.as_bytes())
-        .with_context(|| format!("writing {}", out.display()))?;
-    Ok(())
+/// The plan `cell plan --out` executes: `laplace-sim`'s grasp with the Laplace
+/// optimum as its fallback when refined, else the kernel's grasp.
+fn trial_plan(outcome: &PlanOutcome, refined: &Option<Refined>) -> TrialPlan {
+    match refined {
+        Some(r) => TrialPlan {
+            grasp: r.grasp.clone(),
+            fallback: Some(outcome.plan.grasp.clone()),
+        },
+        None => TrialPlan {
+            grasp: outcome.plan.grasp.clone(),
+            fallback: None,
+        },
+    }
 }
