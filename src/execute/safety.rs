@@ -6,8 +6,12 @@
 //! [`SafetyLimits::check_period_s`] (and at its end), not only its endpoints. Joint
 //! paths are straight lines between rest points, so position extremes lie at the
 //! waypoints, where the arm is at rest; a sample misses one by at most
-//! `a dt^2 / 2` (2.5e-5 rad at 2 rad/s^2 and 5 ms), far inside the margin. Between
-//! collision samples the robot moves by at most its speed times the period.
+//! `a dt^2 / 2` (2.5e-5 rad at 2 rad/s^2 and 5 ms), far inside the margin.
+//! Collisions are checked by distance moved, not by time: at the samples that keep
+//! every point of the robot within [`SafetyLimits::collision_step_m`] of the last
+//! checked configuration (bounded by [`Robot::arm_levers_m`]), and at every sample
+//! where one period moves it farther. A slow approach is not checked forty times
+//! per centimetre, and a fast move no more coarsely than before.
 //!
 //! The checks run in order of cost, and within each the worst sample is reported:
 //! joint positions, velocities, accelerations; then palm height and workspace; then
@@ -140,6 +144,9 @@ pub struct SafetyLimits {
     pub min_palm_z_m: f64,
     /// Sampling period of the checks, in trajectory time (s).
     pub check_period_s: f64,
+    /// Collisions are checked at samples no point of the robot moves farther apart
+    /// than this (m), or at every sample where one period moves it farther.
+    pub collision_step_m: f64,
 }
 
 impl SafetyLimits {
@@ -160,6 +167,7 @@ impl SafetyLimits {
             workspace_max_m: config.workspace.max_m,
             min_palm_z_m: config.table.height_m + config.table.palm_clearance_m,
             check_period_s: 0.005,
+            collision_step_m: 0.002,
         }
     }
 
@@ -211,7 +219,8 @@ impl SafetyCheck {
         let resting = robot.collision_in_arm_motion(start, hand, false).is_some()
             && robot.collision_in_arm_motion(start, hand, true).is_none();
         let start_z = robot.arm().palm(start).translation.z;
-        for (t_s, s) in &samples {
+        for k in self.collision_samples(&samples) {
+            let (t_s, s) = &samples[k];
             let lifting_off =
                 resting && robot.arm().palm(&s.position).translation.z >= start_z - 1e-9;
             let collision = robot.collision_in_arm_motion(&s.position, hand, lifting_off);
@@ -252,6 +261,31 @@ impl SafetyCheck {
             }),
             None => Ok(()),
         }
+    }
+
+    /// The indices of `samples` whose collisions are checked: the first, the last,
+    /// and each one after which the next sample would be more than
+    /// `collision_step_m` from the last one checked (an upper bound on how far any
+    /// point of the robot moved, [`Robot::arm_levers_m`]).
+    fn collision_samples(&self, samples: &[(f64, JointSample<JOINTS>)]) -> Vec<usize> {
+        let levers = self.robot.arm_levers_m();
+        let moved = |a: &ArmJoints, b: &ArmJoints| -> f64 {
+            (0..JOINTS).map(|j| (a[j] - b[j]).abs() * levers[j]).sum()
+        };
+        let mut checked: Vec<usize> = Vec::new();
+        for k in 0..samples.len() {
+            let within = match (checked.last(), samples.get(k + 1)) {
+                (Some(&last), Some((_, next))) => {
+                    // NaN never compares within: such a sample is checked.
+                    moved(&samples[last].1.position, &next.position) <= self.limits.collision_step_m
+                }
+                _ => false,
+            };
+            if !within {
+                checked.push(k);
+            }
+        }
+        checked
     }
 
     /// Samples every `check_period_s` from 0, and the end.
@@ -663,6 +697,54 @@ mod tests {
             arm.check_with(&descend, &open),
             Err(SafetyError::Collision { .. })
         ));
+    }
+
+    /// Collisions are checked by distance moved: on a slow move far fewer
+    /// configurations than the samples, none two checked more than
+    /// `collision_step_m` apart (by the levers' bound) unless one period moves
+    /// farther; the first and the last always. A fast move is checked at every
+    /// sample, as before.
+    #[test]
+    fn collisions_are_checked_by_distance_moved() {
+        let arm = safe_arm();
+        let check = &arm.check;
+        let levers = *check.robot().arm_levers_m();
+        let moved = |a: &ArmJoints, b: &ArmJoints| -> f64 {
+            (0..JOINTS).map(|j| (a[j] - b[j]).abs() * levers[j]).sum()
+        };
+        let step = check.limits().collision_step_m;
+        let fast = arm.limits().joint_limits().unwrap();
+        let slow = JointLimits::new([0.02; JOINTS], [0.5; JOINTS]).unwrap();
+        let end = [0.05, -0.55, 0.0, 1.15, 0.0, -0.75, 0.0];
+        for (limits, slow_move) in [(slow, true), (fast, false)] {
+            let t = Trajectory::point_to_point(OVER_TABLE, end, &limits).unwrap();
+            let samples = check.samples(&t);
+            let checked = check.collision_samples(&samples);
+            assert_eq!(checked[0], 0);
+            assert_eq!(*checked.last().unwrap(), samples.len() - 1);
+            for w in checked.windows(2) {
+                let (a, b) = (&samples[w[0]].1.position, &samples[w[1]].1.position);
+                assert!(w[1] == w[0] + 1 || moved(a, b) <= step, "{w:?}");
+            }
+            if slow_move {
+                assert!(
+                    4 * checked.len() < samples.len(),
+                    "{} of {}",
+                    checked.len(),
+                    samples.len()
+                );
+            } else {
+                let far = samples
+                    .windows(2)
+                    .filter(|w| moved(&w[0].1.position, &w[1].1.position) > step)
+                    .count();
+                assert!(
+                    checked.len() > far,
+                    "{} checked, {far} far steps",
+                    checked.len()
+                );
+            }
+        }
     }
 
     /// A hand closed until its fingers meet (their boxes overlap) is lifted: the

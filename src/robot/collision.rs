@@ -193,6 +193,15 @@ impl CollisionModel {
         self.pairs.len()
     }
 
+    /// The farthest any point of link `link`'s shapes is from the link's origin (m;
+    /// 0 for a link without shapes), by their bounding spheres.
+    pub fn link_reach_m(&self, link: usize) -> f64 {
+        self.shapes[link]
+            .iter()
+            .map(|s| s.centre.coords.norm() + s.radius_m)
+            .fold(0.0, f64::max)
+    }
+
     fn links_touch(&self, a: usize, b: usize, poses: &[Pose]) -> bool {
         self.shapes[a].iter().any(|sa| {
             let centre_a = poses[a] * sa.centre;

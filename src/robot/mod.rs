@@ -17,7 +17,7 @@ use crate::config::{CellConfig, TableConfig, WorkspaceConfig};
 use crate::fsio::FileError;
 use crate::geometry::Pose;
 use collision::{Collision, CollisionModel};
-use description::RobotDescription;
+use description::{Motion, RobotDescription};
 use ik::{IkOptions, IkSolution, IkSolver};
 use kinematics::{link_poses, ArmJoints, ArmKinematics, ARM_DOF};
 use nalgebra::Point3;
@@ -289,6 +289,40 @@ pub struct Robot {
     shoulder: Point3<f64>,
     wrist_in_palm: Point3<f64>,
     max_reach_m: f64,
+    arm_levers_m: ArmJoints,
+}
+
+/// [`Robot::arm_levers_m`]: per arm joint, the reach of the links below it from its
+/// axis, bounded through the tree (a joint's offset from its parent's origin plus
+/// the reach below it, by the triangle inequality, whatever the angles between).
+fn arm_levers_m(description: &RobotDescription, collision: &CollisionModel) -> ArmJoints {
+    // reach[l]: the farthest any point of link l or of a link below it can be from
+    // l's origin.
+    let mut reach: Vec<f64> = (0..description.links.len())
+        .map(|l| collision.link_reach_m(l))
+        .collect();
+    // Joints are listed parents first: backwards, a child's reach is final before
+    // its parent takes it.
+    for joint in description.joints.iter().rev() {
+        let below = joint.parent_from_joint.translation.vector.norm() + reach[joint.child_link];
+        reach[joint.parent_link] = reach[joint.parent_link].max(below);
+    }
+    let mut levers = [0.0; ARM_DOF];
+    for joint in &description.joints {
+        if let Motion::Revolute {
+            variable,
+            multiplier,
+            ..
+        } = joint.motion
+        {
+            if variable < ARM_DOF {
+                // The joint turns its child about an axis through the child's origin
+                // (a variable driving several joints moves a point by their sum).
+                levers[variable] += multiplier.abs() * reach[joint.child_link];
+            }
+        }
+    }
+    levers
 }
 
 impl Robot {
@@ -329,6 +363,7 @@ impl Robot {
         let (shoulder, wrist) = (joints[1], joints[5]);
         let wrist_in_palm = arm.palm(&zero).inverse_transform_point(&wrist);
         let collision = CollisionModel::new(&description, &config.table);
+        let arm_levers_m = arm_levers_m(&description, &collision);
         Ok(Robot {
             ik: IkSolver::new(arm, IkOptions::default()),
             collision,
@@ -340,8 +375,16 @@ impl Robot {
             shoulder,
             wrist_in_palm,
             max_reach_m: (wrist - shoulder).norm(),
+            arm_levers_m,
             description,
         })
+    }
+
+    /// Per arm joint, the farthest any point of the robot that the joint moves can
+    /// be from its axis, whatever the joint angles (m): a point moves by at most
+    /// `sum_j |dq_j| * lever_j` between two arm configurations.
+    pub fn arm_levers_m(&self) -> &ArmJoints {
+        &self.arm_levers_m
     }
 
     /// The arm chain.
@@ -595,5 +638,48 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("lbr_a2") && err.contains("2.5"), "{err}");
+    }
+
+    /// No point of the robot (any point within a link's reach of its origin, the
+    /// hand open or closed) moves farther than the levers' bound between two arm
+    /// configurations; and the bound is not loose by more than a factor of three
+    /// for some of them.
+    #[test]
+    fn the_arm_levers_bound_how_far_any_point_moves() {
+        use rand::{Rng, SeedableRng};
+        let robot = shipped_robot();
+        let levers = robot.arm_levers_m();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let (lower, upper) = (robot.arm().lower_rad, robot.arm().upper_rad);
+        let directions = [
+            nalgebra::Vector3::x(),
+            nalgebra::Vector3::y(),
+            nalgebra::Vector3::z(),
+            -nalgebra::Vector3::x(),
+            -nalgebra::Vector3::y(),
+            -nalgebra::Vector3::z(),
+        ];
+        let mut tightest: f64 = 0.0;
+        for _ in 0..300 {
+            let a: ArmJoints = std::array::from_fn(|j| rng.gen_range(lower[j]..upper[j]));
+            let step = rng.gen_range(0.001..0.2);
+            let b: ArmJoints = std::array::from_fn(|j| a[j] + rng.gen_range(-step..step));
+            let hand = HandPose {
+                spread_rad: rng.gen_range(0.0..PI),
+                flex_rad: std::array::from_fn(|_| rng.gen_range(0.0..2.4)),
+            };
+            let bound: f64 = (0..ARM_DOF).map(|j| (a[j] - b[j]).abs() * levers[j]).sum();
+            let (pa, pb) = (robot.link_poses(&a, &hand), robot.link_poses(&b, &hand));
+            for l in 0..pa.len() {
+                let reach = robot.collision.link_reach_m(l);
+                for d in &directions {
+                    let point = nalgebra::Point3::from(d * reach);
+                    let moved = (pa[l] * point - pb[l] * point).norm();
+                    assert!(moved <= bound + 1e-12, "link {l}: {moved} > {bound}");
+                    tightest = tightest.max(moved / bound);
+                }
+            }
+        }
+        assert!(tightest > 1.0 / 3.0, "{tightest}");
     }
 }
