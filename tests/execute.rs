@@ -669,6 +669,21 @@ fn cell_plan_out_plans_again_when_the_executor_refuses_the_motions() {
         "{stderr}"
     );
     assert!(!paper_path.exists());
+
+    // Start joints beyond the arm's limits are refused before any planning.
+    let (ok, _, stderr) = cell_plan_out(
+        &config,
+        "handle",
+        &fits_path,
+        &paper_path,
+        &["--from-joints", "9,0,0,0,0,0,0"],
+    );
+    assert!(!ok);
+    assert!(
+        stderr.contains("--from-joints") && stderr.contains("lbr_a1"),
+        "{stderr}"
+    );
+    assert!(!paper_path.exists());
 }
 
 #[test]

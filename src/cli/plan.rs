@@ -176,7 +176,12 @@ pub struct PlanArgs {
     /// Arm joints A1,A2,E1,A3,A4,A5,A6 (rad) the grasp will start from (--out's
     /// joints are ones whose motions from there the executor accepts); default: the
     /// park position.
-    #[arg(long, value_name = "Q1,...,Q7", allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "Q1,...,Q7",
+        allow_hyphen_values = true,
+        requires = "out"
+    )]
     pub from_joints: Option<String>,
     /// The paper's settings: its kernel scale (s = b = 50 for `simulation`, 700 for
     /// `robot`), its fixed weights, no reachability repair for any method (an
@@ -400,6 +405,18 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     } else {
         Some(Arc::new(Robot::load(&cell)?))
     };
+    // Where the grasp's motions start (--out), checked before any planning.
+    let current: ArmJoints = match args.from_joints.as_deref() {
+        Some(text) => parse_numbers(text, 7, "--from-joints")?
+            .try_into()
+            .expect("seven numbers"),
+        None => cell.robot.park_joints_rad,
+    };
+    if let Some(robot) = &robot {
+        robot
+            .check_limits(&current)
+            .context("--from-joints: the arm's joints where the grasp starts")?;
+    }
     let hand = HandModel::load(&cell)?;
     let target = match (&args.cloud, args.no_seen_surface) {
         (Some(path), false) => Some(read_cloud(path)?),
@@ -446,12 +463,6 @@ pub fn run(config: &Path, args: PlanArgs) -> anyhow::Result<ExitCode> {
     let (mut outcome, mut refined) = plan(robot.as_deref().map(|r| r as &dyn Reachability))?;
     let mut first_refusal = None;
     if let (Some(out), Some(robot)) = (&args.out, &robot) {
-        let current: ArmJoints = match args.from_joints.as_deref() {
-            Some(text) => parse_numbers(text, 7, "--from-joints")?
-                .try_into()
-                .expect("seven numbers"),
-            None => cell.robot.park_joints_rad,
-        };
         let check = SafetyCheck::new(Arc::clone(robot), SafetyLimits::from_cell(&cell, robot));
         let executor = ExecutorReach {
             robot,
