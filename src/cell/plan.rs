@@ -767,6 +767,37 @@ mod tests {
     /// arm reaches, with its pre-grasp, is refused when the safety layer forbids the
     /// palm on the way down (its lowest palm height raised above the grasp), and
     /// the refusal names the approach; with the cell's own limits it is accepted.
+    /// The approach goes as far beyond the grasp as the safety layer allows, a
+    /// quarter of the configured overtravel at a time: all of it high over the
+    /// table, less where the open fingers would end in it, none where only the
+    /// planned pose itself is allowed.
+    #[test]
+    fn the_approach_overtravel_is_the_longest_the_safety_layer_allows() {
+        let rig = Rig::new();
+        let max = rig.motions.approach.max_overtravel_m;
+        let overtravel = |z: f64| {
+            let mut grasp = top_grasp([0.6, 0.0, z]);
+            executable_joints(&rig.executor(), &mut grasp).unwrap();
+            let request = ExecutionRequest::from_planned(&grasp, "top", "laplace").unwrap();
+            let home = rig.config.robot.park_joints_rad;
+            validate_grasp(&rig.check, &rig.motions, &request, &home)
+                .unwrap()
+                .overtravel_m
+        };
+        // The open fingers reach about 0.1 m below the palm, and the palm may go
+        // no lower than 0.05 m.
+        for (z, quarters) in [
+            (0.2, 4.0),
+            (0.15, 3.0),
+            (0.13, 2.0),
+            (0.12, 1.0),
+            (0.11, 0.0),
+        ] {
+            let expected = quarters / 4.0 * max;
+            assert!((overtravel(z) - expected).abs() < 1e-12, "palm at z = {z}");
+        }
+    }
+
     #[test]
     fn the_executors_reach_refuses_a_grasp_the_arm_reaches_but_cannot_move_through() {
         let rig = Rig::new();

@@ -174,6 +174,18 @@ pub fn validate_grasp(
         )
         .map_err(path_error("approach"))
         .and_then(|path| {
+            // An approach longer than the last resort that ends where the safety
+            // layer refuses the arm is refused as a whole without sampling it: its
+            // error (where the motion first goes wrong) is not reported.
+            if !last {
+                check
+                    .check_configuration(&path.end(), &preshape)
+                    .map_err(|source| ExecuteError::Unsafe {
+                        phase: PHASE,
+                        motion: "approach",
+                        source: Box::new(source),
+                    })?;
+            }
             let report = checked_motion(
                 check,
                 approach_speed_m_s(config),
