@@ -9,7 +9,7 @@
 //! `a dt^2 / 2` (2.5e-5 rad at 2 rad/s^2 and 5 ms), far inside the margin.
 //! Collisions are checked by distance moved, not by time: at the samples that keep
 //! every point of the robot within [`SafetyLimits::collision_step_m`] of the last
-//! checked configuration (bounded by [`Robot::arm_levers_m`]), and at every sample
+//! checked configuration (bounded by [`Robot::max_point_motion_m`]), and at every sample
 //! where one period moves it farther. A slow approach is not checked forty times
 //! per centimetre, and a fast move no more coarsely than before.
 //!
@@ -266,18 +266,16 @@ impl SafetyCheck {
     /// The indices of `samples` whose collisions are checked: the first, the last,
     /// and each one after which the next sample would be more than
     /// `collision_step_m` from the last one checked (an upper bound on how far any
-    /// point of the robot moved, [`Robot::arm_levers_m`]).
+    /// point of the robot moved, [`Robot::max_point_motion_m`]).
     fn collision_samples(&self, samples: &[(f64, JointSample<JOINTS>)]) -> Vec<usize> {
-        let levers = self.robot.arm_levers_m();
-        let moved = |a: &ArmJoints, b: &ArmJoints| -> f64 {
-            (0..JOINTS).map(|j| (a[j] - b[j]).abs() * levers[j]).sum()
-        };
         let mut checked: Vec<usize> = Vec::new();
         for k in 0..samples.len() {
             let within = match (checked.last(), samples.get(k + 1)) {
                 (Some(&last), Some((_, next))) => {
                     // NaN never compares within: such a sample is checked.
-                    moved(&samples[last].1.position, &next.position) <= self.limits.collision_step_m
+                    self.robot
+                        .max_point_motion_m(&samples[last].1.position, &next.position)
+                        <= self.limits.collision_step_m
                 }
                 _ => false,
             };
@@ -708,10 +706,7 @@ mod tests {
     fn collisions_are_checked_by_distance_moved() {
         let arm = safe_arm();
         let check = &arm.check;
-        let levers = *check.robot().arm_levers_m();
-        let moved = |a: &ArmJoints, b: &ArmJoints| -> f64 {
-            (0..JOINTS).map(|j| (a[j] - b[j]).abs() * levers[j]).sum()
-        };
+        let moved = |a: &ArmJoints, b: &ArmJoints| check.robot().max_point_motion_m(a, b);
         let step = check.limits().collision_step_m;
         let fast = arm.limits().joint_limits().unwrap();
         let slow = JointLimits::new([0.02; JOINTS], [0.5; JOINTS]).unwrap();

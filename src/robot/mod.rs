@@ -292,7 +292,7 @@ pub struct Robot {
     arm_levers_m: ArmJoints,
 }
 
-/// [`Robot::arm_levers_m`]: per arm joint, the reach of the links below it from its
+/// The levers of [`Robot::max_point_motion_m`]: per arm joint, the reach of the links below it from its
 /// axis, bounded through the tree (a joint's offset from its parent's origin plus
 /// the reach below it, by the triangle inequality, whatever the angles between).
 fn arm_levers_m(description: &RobotDescription, collision: &CollisionModel) -> ArmJoints {
@@ -380,11 +380,14 @@ impl Robot {
         })
     }
 
-    /// Per arm joint, the farthest any point of the robot that the joint moves can
-    /// be from its axis, whatever the joint angles (m): a point moves by at most
-    /// `sum_j |dq_j| * lever_j` between two arm configurations.
-    pub fn arm_levers_m(&self) -> &ArmJoints {
-        &self.arm_levers_m
+    /// An upper bound on how far any point of the robot moves between arm
+    /// configurations `a` and `b`, whatever the hand's shape (m): `sum_j |dq_j| *
+    /// lever_j`, where a joint's lever is the farthest any point it moves can be
+    /// from its axis.
+    pub fn max_point_motion_m(&self, a: &ArmJoints, b: &ArmJoints) -> f64 {
+        (0..ARM_DOF)
+            .map(|j| (a[j] - b[j]).abs() * self.arm_levers_m[j])
+            .sum()
     }
 
     /// The arm chain.
@@ -648,7 +651,6 @@ mod tests {
     fn the_arm_levers_bound_how_far_any_point_moves() {
         use rand::{Rng, SeedableRng};
         let robot = shipped_robot();
-        let levers = robot.arm_levers_m();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let (lower, upper) = (robot.arm().lower_rad, robot.arm().upper_rad);
         let directions = [
@@ -668,7 +670,7 @@ mod tests {
                 spread_rad: rng.gen_range(0.0..PI),
                 flex_rad: std::array::from_fn(|_| rng.gen_range(0.0..2.4)),
             };
-            let bound: f64 = (0..ARM_DOF).map(|j| (a[j] - b[j]).abs() * levers[j]).sum();
+            let bound = robot.max_point_motion_m(&a, &b);
             let (pa, pb) = (robot.link_poses(&a, &hand), robot.link_poses(&b, &hand));
             for l in 0..pa.len() {
                 let reach = robot.collision.link_reach_m(l);
