@@ -136,6 +136,7 @@ fn grasp(name: &str, task: &str, pose: &Pose) -> TeachGrasp {
         pose: PoseJson::from(pose),
         spread_rad: 0.0,
         preshape_rad: graspcell::robot::PreshapeRad::OPEN,
+        max_overtravel_m: None,
     }
 }
 

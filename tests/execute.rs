@@ -70,6 +70,7 @@ fn plan(robot: &Robot, palm: &Pose, pregrasp: &Pose) -> ExecutionRequest {
         pregrasp_joints_rad: pre,
         spread_rad: 0.3,
         preshape_rad: graspcell::robot::PreshapeRad::OPEN,
+        max_overtravel_m: None,
         task: None,
         method: None,
     }

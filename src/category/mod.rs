@@ -268,6 +268,10 @@ pub struct GraspEntry {
     /// default.
     #[serde(default, skip_serializing_if = "PreshapeRad::is_open")]
     pub preshape_rad: PreshapeRad,
+    /// How far beyond `pose` the approach to contact may go (m); the cell's
+    /// `approach.max_overtravel_m` when absent (the teach file's value).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_overtravel_m: Option<f64>,
     /// Quality: Ferrari–Canny epsilon (> 0).
     pub q: f64,
     /// Grasp wrench space volume.
@@ -514,7 +518,11 @@ impl DatabaseFile {
                     "must be finite",
                 );
             }
-            if let Some(problem) = g.preshape_rad.problem(crate::robot::FLEX_LIMITS_RAD) {
+            if let Some(problem) = g
+                .preshape_rad
+                .problem(crate::robot::FLEX_LIMITS_RAD)
+                .or_else(|| crate::quality::approach::overtravel_problem(g.max_overtravel_m))
+            {
                 return Err(CategoryError::Grasp {
                     grasp: what(),
                     problem,

@@ -544,6 +544,7 @@ pub fn suggest_teach_file(
                         },
                         spread_rad: s.spread_rad,
                         preshape_rad: s.preshape_rad,
+                        max_overtravel_m: None,
                     });
                 }
             }

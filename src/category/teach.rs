@@ -16,14 +16,20 @@
 //! spread_rad = 1.0472       # optional, 0 by default
 //! preshape_rad = 0.0        # optional: each finger's flex before the approach (rad),
 //!                           # one value or three [F1, F2, F3]; 0 (open) by default
+//! max_overtravel_m = 0.0    # optional: how far beyond `pose` the approach to contact
+//!                           # may go (m); the cell's approach.max_overtravel_m by default
 //! ```
 //!
 //! A pre-shape (fingers partly closed before the approach) is what a tool lying
-//! flat on the table needs: the open fingers would meet the table first.
+//! flat on the table needs: the open fingers would meet the table first. An
+//! overtravel of 0 is what a fingertip pinch taught with the palm clear of the
+//! object needs (a mug's top grasp by the rim): going on to contact would bring the
+//! palm down on the rim, and the fingers would sweep past a short mug's body.
 
 use super::CategoryError;
 use crate::geometry::{params_from_pose, Pose, PoseJson, PoseParams};
 use crate::mesh::procedural::Category;
+use crate::quality::approach::overtravel_problem;
 use crate::robot::hand::HandModel;
 use crate::robot::PreshapeRad;
 use serde::{Deserialize, Serialize};
@@ -76,6 +82,10 @@ pub struct TeachGrasp {
     /// Each finger's flex before the approach (rad); open by default.
     #[serde(default, skip_serializing_if = "PreshapeRad::is_open")]
     pub preshape_rad: PreshapeRad,
+    /// How far beyond `pose` the approach to contact may go (m); the cell's
+    /// `approach.max_overtravel_m` when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_overtravel_m: Option<f64>,
 }
 
 impl TeachModel {
@@ -107,6 +117,8 @@ pub struct CheckedGrasp {
     pub spread_rad: f64,
     /// Pre-shape: each finger's flex before the approach (rad).
     pub preshape_rad: PreshapeRad,
+    /// Its own overtravel of the approach (m), if it names one.
+    pub max_overtravel_m: Option<f64>,
 }
 
 impl TeachFile {
@@ -169,6 +181,9 @@ impl TeachFile {
                     } else {
                         format!("preshape_rad = {}\n", list(&g.preshape_rad.0))
                     };
+                }
+                if let Some(m) = g.max_overtravel_m {
+                    text += &format!("max_overtravel_m = {}\n", float(m));
                 }
             }
         }
@@ -261,7 +276,11 @@ impl TeachFile {
                         ),
                     });
                 }
-                if let Some(problem) = g.preshape_rad.problem(flex_limits_rad) {
+                if let Some(problem) = g
+                    .preshape_rad
+                    .problem(flex_limits_rad)
+                    .or_else(|| overtravel_problem(g.max_overtravel_m))
+                {
                     return Err(CategoryError::Grasp {
                         grasp: g.name.clone(),
                         problem,
@@ -275,6 +294,7 @@ impl TeachFile {
                     pose,
                     spread_rad: g.spread_rad,
                     preshape_rad: g.preshape_rad,
+                    max_overtravel_m: g.max_overtravel_m,
                 });
             }
         }
@@ -381,5 +401,25 @@ mod tests {
             .unwrap()
             .check(Category::Hammer, &dir, &hand)
             .unwrap();
+        // A grasp's own overtravel: optional, written back, checked.
+        let given = "max_overtravel_m = 0.0";
+        let file = parse(&text(given)).unwrap();
+        assert_eq!(file.models[0].grasps[0].max_overtravel_m, Some(0.0));
+        assert!(file.to_toml("").contains(given));
+        assert_eq!(parse(&file.to_toml("")).unwrap(), file);
+        let checked = file.check(Category::Hammer, &dir, &hand).unwrap();
+        assert_eq!(checked[0].max_overtravel_m, Some(0.0));
+        assert_eq!(grasp("").max_overtravel_m, None);
+        for bad in ["max_overtravel_m = -0.01", "max_overtravel_m = nan"] {
+            let err = parse(&text(bad))
+                .unwrap()
+                .check(Category::Hammer, &dir, &hand)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("h/use") && err.contains("max_overtravel_m"),
+                "{bad}: {err}"
+            );
+        }
     }
 }

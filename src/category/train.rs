@@ -275,6 +275,7 @@ pub fn train(
             pose,
             spread_rad: g.spread_rad,
             preshape_rad: g.preshape_rad,
+            max_overtravel_m: g.max_overtravel_m,
             q: e.q,
             volume: e.volume,
             contacts: e.contacts,

@@ -101,6 +101,7 @@ pub fn execution_request(plan: &GraspPlan) -> Result<ExecutionRequest, CellError
         pregrasp_joints_rad: plan.pregrasp_joints_rad,
         spread_rad: plan.spread_rad,
         preshape_rad: crate::robot::PreshapeRad(plan.preshape_rad),
+        max_overtravel_m: plan.overtravel()?,
         task: None,
         method: Some(plan.method()?.to_string()),
     };
@@ -330,6 +331,7 @@ mod tests {
                 pregrasp_pose: pregrasp,
                 spread_rad,
                 preshape_rad: crate::robot::PreshapeRad::OPEN,
+                max_overtravel_m: None,
                 joints: Some(joints),
                 pregrasp_joints: Some([0.1; 7]),
                 reachable: true,

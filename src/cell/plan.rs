@@ -467,6 +467,7 @@ impl ExecutorReach<'_> {
             pregrasp_joints_rad: *pre,
             spread_rad: hand.spread_rad,
             preshape_rad: PreshapeRad(hand.flex_rad),
+            max_overtravel_m: None,
             task: None,
             method: None,
         };
@@ -709,6 +710,7 @@ mod tests {
             pregrasp_pose: nalgebra::Translation3::new(0.0, 0.0, 0.1) * pose,
             spread_rad: 0.0,
             preshape_rad: crate::robot::PreshapeRad::OPEN,
+            max_overtravel_m: None,
             joints: None,
             pregrasp_joints: None,
             reachable: true,
@@ -737,6 +739,7 @@ mod tests {
             pregrasp_joints_rad: far.joints,
             spread_rad: 0.0,
             preshape_rad: crate::robot::PreshapeRad::OPEN,
+            max_overtravel_m: None,
             task: None,
             method: None,
         };
@@ -752,6 +755,7 @@ mod tests {
             pregrasp_joints_rad: grasp.pregrasp_joints.unwrap(),
             spread_rad: 0.0,
             preshape_rad: crate::robot::PreshapeRad::OPEN,
+            max_overtravel_m: None,
             task: None,
             method: None,
         };
@@ -775,8 +779,9 @@ mod tests {
     fn the_approach_overtravel_is_the_longest_the_safety_layer_allows() {
         let rig = Rig::new();
         let max = rig.motions.approach.max_overtravel_m;
-        let overtravel = |z: f64| {
+        let overtravel_of = |z: f64, own: Option<f64>| {
             let mut grasp = top_grasp([0.6, 0.0, z]);
+            grasp.max_overtravel_m = own;
             executable_joints(&rig.executor(), &mut grasp).unwrap();
             let request = ExecutionRequest::from_planned(&grasp, "top", "laplace").unwrap();
             let home = rig.config.robot.park_joints_rad;
@@ -784,6 +789,7 @@ mod tests {
                 .unwrap()
                 .overtravel_m
         };
+        let overtravel = |z: f64| overtravel_of(z, None);
         // The open fingers reach about 0.1 m below the palm, and the palm may go
         // no lower than 0.05 m.
         for (z, quarters) in [
@@ -796,6 +802,11 @@ mod tests {
             let expected = quarters / 4.0 * max;
             assert!((overtravel(z) - expected).abs() < 1e-12, "palm at z = {z}");
         }
+        // A grasp that names its own overtravel (the mug's rim pinches: none) goes
+        // no farther, high over the table or not; a longer one is cut the same way.
+        assert_eq!(overtravel_of(0.2, Some(0.0)), 0.0);
+        assert!((overtravel_of(0.2, Some(0.02)) - 0.02).abs() < 1e-12);
+        assert!((overtravel_of(0.13, Some(0.08)) - 0.02).abs() < 1e-12);
     }
 
     #[test]

@@ -4,7 +4,7 @@ use crate::config::CellConfig;
 use crate::geometry::PoseJson;
 use crate::geometry::{params_from_pose, parse_pose};
 use crate::mesh::load_mesh;
-use crate::quality::approach::{ApproachOptions, ApproachStop};
+use crate::quality::approach::{overtravel_problem, ApproachOptions, ApproachStop};
 use crate::quality::autograsp::{
     evaluate_approached_grasp, ApproachedGrasp, AutoGraspOptions, FingerStop, GraspApproach,
     GraspObject, Obstacle, StartCollision,
@@ -72,6 +72,11 @@ pub struct QualityArgs {
     /// paper's setting).
     #[arg(long, requires = "object")]
     pub approach_to_contact: bool,
+    /// The grasp's own overtravel for --approach-to-contact (m), as a database grasp
+    /// names it (`max_overtravel_m`; 0 for the mug's rim pinches): it replaces
+    /// approach.max_overtravel_m.
+    #[arg(long, requires = "approach_to_contact")]
+    pub max_overtravel_m: Option<f64>,
     /// Also run the physics lift test (rapier3d) for --object: close, lift 0.10 m,
     /// hold 2 s, with the object free on the table (--table-z) and friction --mu.
     /// The object frame must be upright (z up). Prints the verdict, lift height,
@@ -207,8 +212,13 @@ fn run_object(config: &Path, object: &Path, args: &QualityArgs) -> anyhow::Resul
         ..QualityParams::default()
     };
     let preshape = preshape_of(args.spread, args.preshape_rad.as_deref())?;
+    if let Some(problem) = overtravel_problem(args.max_overtravel_m) {
+        anyhow::bail!("--max-overtravel-m: {problem}");
+    }
     let approach = if args.approach_to_contact {
-        GraspApproach::ToContact(ApproachOptions::from_cell(&config))
+        GraspApproach::ToContact(
+            ApproachOptions::from_cell(&config).for_grasp(args.max_overtravel_m),
+        )
     } else {
         GraspApproach::AtPose
     };

@@ -904,7 +904,9 @@ impl<'a> NovelRun<'a> {
             &placed.base_from_object,
             &reached,
             &preshape,
-            self.approach.as_ref(),
+            self.approach
+                .map(|a| a.for_grasp(grasp.max_overtravel_m))
+                .as_ref(),
         );
         (
             Attempt::Executed {

@@ -999,6 +999,7 @@ mod tests {
             pregrasp_joints_rad: pre.joints,
             spread_rad: 0.3,
             preshape_rad: crate::robot::PreshapeRad::OPEN,
+            max_overtravel_m: None,
             task: None,
             method: None,
         }
@@ -1793,6 +1794,7 @@ mod tests {
                     pregrasp_joints_rad: joints,
                     spread_rad: spread,
                     preshape_rad: crate::robot::PreshapeRad::OPEN,
+                    max_overtravel_m: None,
                     task: None,
                     method: None,
                 },
@@ -1811,6 +1813,7 @@ mod tests {
                         pregrasp_joints_rad: pre,
                         spread_rad: spread.clamp(0.0, PI),
                         preshape_rad: crate::robot::PreshapeRad::OPEN,
+                        max_overtravel_m: None,
                         task: None,
                         method: None,
                     }
@@ -1833,6 +1836,7 @@ mod tests {
                         pregrasp_joints_rad: pre,
                         spread_rad: 0.3,
                         preshape_rad: crate::robot::PreshapeRad::OPEN,
+                        max_overtravel_m: None,
                         task: None,
                         method: None,
                     }

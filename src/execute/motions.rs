@@ -156,9 +156,12 @@ pub fn validate_grasp(
             source,
         }
     };
-    // The full overtravel, or as much of it as the path and the safety layer
-    // allow (a quarter at a time), down to none: then the plain approach's error.
-    let max = config.approach.max_overtravel_m;
+    // The full overtravel (the grasp's own, else the configured one), or as much
+    // of it as the path and the safety layer allow (a quarter at a time), down to
+    // none: then the plain approach's error.
+    let max = request
+        .max_overtravel_m
+        .unwrap_or(config.approach.max_overtravel_m);
     let mut tried = [max, 0.75 * max, 0.5 * max, 0.25 * max, 0.0]
         .into_iter()
         .peekable();

@@ -3,6 +3,7 @@
 use crate::geometry::{check_finite, Pose, PoseJson};
 use crate::hw::fri::JOINTS;
 use crate::plan::PlannedGrasp;
+use crate::quality::approach::overtravel_problem;
 use crate::robot::PreshapeRad;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -57,6 +58,10 @@ pub struct ExecutionRequest {
     /// F3); open (absent) by default.
     #[serde(default, skip_serializing_if = "PreshapeRad::is_open")]
     pub preshape_rad: PreshapeRad,
+    /// How far beyond `palm` the approach to contact may go (m); the cell's
+    /// `approach.max_overtravel_m` when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_overtravel_m: Option<f64>,
     /// The task the grasp was planned for.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub task: Option<String>,
@@ -80,6 +85,8 @@ pub struct ValidRequest {
     pub spread_rad: f64,
     /// Each finger's flex before the approach (rad).
     pub preshape_rad: PreshapeRad,
+    /// The grasp's own overtravel of the approach (m), if it names one.
+    pub max_overtravel_m: Option<f64>,
 }
 
 impl ExecutionRequest {
@@ -105,6 +112,7 @@ impl ExecutionRequest {
                 .ok_or_else(|| missing("pregrasp_joints_rad"))?,
             spread_rad: grasp.spread_rad,
             preshape_rad: grasp.preshape_rad,
+            max_overtravel_m: grasp.max_overtravel_m,
             task: Some(task.to_string()),
             method: Some(method.to_string()),
         })
@@ -143,6 +151,9 @@ impl ExecutionRequest {
         if let Some(problem) = self.preshape_rad.problem(crate::robot::FLEX_LIMITS_RAD) {
             return Err(invalid("preshape_rad", problem));
         }
+        if let Some(problem) = overtravel_problem(self.max_overtravel_m) {
+            return Err(invalid("max_overtravel_m", problem));
+        }
         Ok(ValidRequest {
             palm,
             pregrasp,
@@ -150,6 +161,7 @@ impl ExecutionRequest {
             pregrasp_joints_rad: self.pregrasp_joints_rad,
             spread_rad: self.spread_rad,
             preshape_rad: self.preshape_rad,
+            max_overtravel_m: self.max_overtravel_m,
         })
     }
 }
@@ -174,6 +186,7 @@ mod tests {
             pregrasp_joints_rad: [0.0, -0.83, 0.0, 1.41, 0.0, -0.9, 0.0],
             spread_rad: 0.5,
             preshape_rad: crate::robot::PreshapeRad::OPEN,
+            max_overtravel_m: None,
             task: Some("top".into()),
             method: None,
         }
@@ -220,5 +233,24 @@ mod tests {
         bad.preshape_rad = PreshapeRad([0.0, 0.0, 2.6]);
         let err = bad.validate().unwrap_err().to_string();
         assert!(err.contains("preshape_rad") && err.contains("F3"), "{err}");
+    }
+
+    #[test]
+    fn a_grasps_own_overtravel_is_optional_and_checked() {
+        let r = request();
+        let text = serde_json::to_string(&r).unwrap();
+        assert!(!text.contains("max_overtravel_m"), "{text}");
+        let with = text.replace(
+            "\"spread_rad\":0.5",
+            "\"spread_rad\":0.5,\"max_overtravel_m\":0.0",
+        );
+        let parsed: ExecutionRequest = serde_json::from_str(&with).unwrap();
+        assert_eq!(parsed.validate().unwrap().max_overtravel_m, Some(0.0));
+        for bad_value in [-0.01, f64::NAN, f64::INFINITY] {
+            let mut bad = r.clone();
+            bad.max_overtravel_m = Some(bad_value);
+            let err = bad.validate().unwrap_err().to_string();
+            assert!(err.contains("max_overtravel_m"), "{err}");
+        }
     }
 }

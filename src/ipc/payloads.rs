@@ -857,6 +857,10 @@ pub struct GraspPlan {
     /// Pre-shape of the grasp: each finger's flex (F1, F2, F3) before the approach
     /// (rad); zero is the open hand.
     pub preshape_rad: [f64; 3],
+    /// How far beyond the palm pose the approach to contact may go (m), when
+    /// `own_overtravel` is 1; else the executor's configured overtravel.
+    pub max_overtravel_m: f64,
+    own_overtravel: u32,
 }
 message!(GraspPlan, Topic::GraspPlan);
 
@@ -888,6 +892,8 @@ impl GraspPlan {
             method: Name::new("grasp plan method", method)?,
             spread_rad: grasp.spread_rad,
             preshape_rad: grasp.preshape_rad.0,
+            max_overtravel_m: grasp.max_overtravel_m.unwrap_or(0.0),
+            own_overtravel: grasp.max_overtravel_m.is_some().into(),
         })
     }
 
@@ -923,11 +929,20 @@ impl GraspPlan {
         self.method.to_str("grasp plan method")
     }
 
+    /// The plan's own overtravel of the approach (m), if it names one.
+    pub fn overtravel(&self) -> Result<Option<f64>, IpcError> {
+        Ok(
+            flag_from_code("grasp plan own_overtravel", self.own_overtravel)?
+                .then_some(self.max_overtravel_m),
+        )
+    }
+
     /// Checks the fields that make bytes a plan at all: its failure code and method
     /// text (the numbers are the executor's to validate).
     pub fn check(&self) -> Result<(), IpcError> {
         self.failure()?;
         self.method()?;
+        self.overtravel()?;
         Ok(())
     }
 }
@@ -1475,6 +1490,7 @@ mod tests {
             pregrasp_pose: pose_from_params(&[0.6, 0.0, 0.3, 3.1, 0.0, 0.0]),
             spread_rad: 0.4,
             preshape_rad: crate::robot::PreshapeRad::OPEN,
+            max_overtravel_m: None,
             joints: Some([0.1; ARM_JOINTS]),
             pregrasp_joints: Some([0.2; ARM_JOINTS]),
             reachable: true,
@@ -1501,10 +1517,29 @@ mod tests {
         );
         assert_eq!(
             std::mem::offset_of!(GraspPlan, preshape_rad) + 24,
-            size_of::<GraspPlan>()
+            std::mem::offset_of!(GraspPlan, max_overtravel_m)
         );
         let request = crate::cell::execute::execution_request(&plan).unwrap();
         assert_eq!(request.preshape_rad, grasp.preshape_rad);
+        // So does a grasp's own overtravel, and its absence (the executor's).
+        assert_eq!(request.max_overtravel_m, None);
+        for own in [0.0, 0.02] {
+            grasp.max_overtravel_m = Some(own);
+            let plan = GraspPlan::new(3, 4, &grasp, "laplace").unwrap();
+            let request = crate::cell::execute::execution_request(&plan).unwrap();
+            assert_eq!(request.max_overtravel_m, Some(own));
+        }
+        let mut garbled = GraspPlan::new(3, 4, &grasp, "laplace").unwrap();
+        garbled.own_overtravel = 7;
+        assert!(garbled
+            .check()
+            .unwrap_err()
+            .to_string()
+            .contains("own_overtravel"));
+        garbled.own_overtravel = 1;
+        garbled.max_overtravel_m = f64::NAN;
+        let err = crate::cell::execute::execution_request(&garbled).unwrap_err();
+        assert!(err.to_string().contains("max_overtravel_m"), "{err}");
         assert_eq!(plan.failure().unwrap(), FailureCause::None);
         grasp.pregrasp_joints = None;
         let err = GraspPlan::new(3, 4, &grasp, "laplace").unwrap_err();
@@ -1595,7 +1630,11 @@ mod tests {
         // The fits, then the seen surface (12-byte points; 8-byte alignment).
         assert_eq!(size_of::<Fits>(), 24 + 32 * 160 + MAX_SEEN_POINTS * 12);
         assert_eq!(size_of::<JointState>(), 11 * 8);
-        assert_eq!(size_of::<GraspPlan>(), 16 + 256 + 112 + 8 + 8 + 32 + 8 + 24);
+        // ... the pre-shape, the grasp's own overtravel and its flag (4 + 4 padding).
+        assert_eq!(
+            size_of::<GraspPlan>(),
+            16 + 256 + 112 + 8 + 8 + 32 + 8 + 24 + 8 + 8
+        );
         // The header's stamp sits at byte 8 (the socket benchmark relies on it).
         assert_eq!(std::mem::offset_of!(CloudHeader, stamp_ns), 8);
     }

@@ -57,6 +57,7 @@ pub fn example_grasps(
                 model_from_palm: g.params(),
                 spread_rad: g.spread_rad,
                 preshape_rad: g.preshape_rad,
+                max_overtravel_m: g.max_overtravel_m,
                 q: g.q,
                 sigma: g.sigma,
             })

@@ -389,6 +389,7 @@ pub fn grasps_from_json(
             model_from_palm: params_from_pose(&pose),
             spread_rad: g.spread_rad,
             preshape_rad: crate::robot::PreshapeRad::OPEN,
+            max_overtravel_m: None,
             q: g.q,
             sigma: g.sigma_m_rad,
         });

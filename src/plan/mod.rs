@@ -73,6 +73,9 @@ pub struct ExampleGrasp {
     pub spread_rad: f64,
     /// Its pre-shape: each finger's flex before the approach (rad; open for most).
     pub preshape_rad: PreshapeRad,
+    /// How far beyond the pose its approach to contact may go (m); the cell's when
+    /// `None` (most grasps).
+    pub max_overtravel_m: Option<f64>,
     /// Grasp quality `q_ik >= 0` (Ferrari–Canny epsilon; 0 = not force closure).
     pub q: f64,
     /// Per-DOF standard deviations `Delta_d / 3` (m, m, m, rad, rad, rad): along the
@@ -170,6 +173,7 @@ pub(crate) mod test_support {
             model_from_palm: theta,
             spread_rad: 0.1 * model as f64,
             preshape_rad: PreshapeRad::OPEN,
+            max_overtravel_m: None,
             q,
             sigma: [0.01, 0.012, 0.008, 0.15, 0.12, 0.2],
         }

@@ -222,6 +222,11 @@ pub struct PlannedGrasp {
     /// left out of the JSON.
     #[serde(skip_serializing_if = "PreshapeRad::is_open")]
     pub preshape_rad: PreshapeRad,
+    /// How far beyond `pose` the approach to contact may go (m), when the model
+    /// grasp names it; else the cell's `approach.max_overtravel_m` (and left out of
+    /// the JSON).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_overtravel_m: Option<f64>,
     /// Arm joints at the grasp, when reachable.
     pub joints: Option<ArmJoints>,
     /// Arm joints at the pre-grasp, when reachable.
@@ -611,14 +616,15 @@ impl Problem<'_> {
 
     fn planned(&self, pose: Pose, feasible: Result<Option<Feasible>, Infeasible>) -> PlannedGrasp {
         let dominant = &self.grasps[self.objective.dominant_grasp(&pose)];
-        self.planned_at(pose, dominant.spread_rad, dominant.preshape_rad, feasible)
+        self.planned_at(pose, dominant, feasible)
     }
 
+    /// The plan of `pose` with the hand of `grasp` (its spread, pre-shape and
+    /// overtravel).
     fn planned_at(
         &self,
         pose: Pose,
-        spread_rad: f64,
-        preshape_rad: PreshapeRad,
+        grasp: &ExampleGrasp,
         feasible: Result<Option<Feasible>, Infeasible>,
     ) -> PlannedGrasp {
         let log_objective = self.objective.log_value_at(&pose);
@@ -630,8 +636,9 @@ impl Problem<'_> {
         PlannedGrasp {
             pose,
             pregrasp_pose: pregrasp_pose(&pose, self.options.pregrasp_offset_m),
-            spread_rad,
-            preshape_rad,
+            spread_rad: grasp.spread_rad,
+            preshape_rad: grasp.preshape_rad,
+            max_overtravel_m: grasp.max_overtravel_m,
             joints,
             pregrasp_joints,
             reachable,
@@ -1047,7 +1054,7 @@ fn best_single(
     let mut unrepaired = None;
     let mut constrained_runs = 0;
     let planned = match checker {
-        None => problem.planned_at(pose, grasp.spread_rad, grasp.preshape_rad, Ok(None)),
+        None => problem.planned_at(pose, grasp, Ok(None)),
         Some(c) => match c.check(
             &pose,
             &grasp.preshape_rad.at_spread(grasp.spread_rad),
@@ -1055,17 +1062,12 @@ fn best_single(
             &[],
             false,
         ) {
-            Ok(f) => problem.planned_at(pose, grasp.spread_rad, grasp.preshape_rad, Ok(Some(f))),
+            Ok(f) => problem.planned_at(pose, grasp, Ok(Some(f))),
             Err(why) if !(problem.options.repair && problem.options.repair_best_single) => {
-                problem.planned_at(pose, grasp.spread_rad, grasp.preshape_rad, Err(why))
+                problem.planned_at(pose, grasp, Err(why))
             }
             Err(why) => {
-                let top = problem.planned_at(
-                    pose,
-                    grasp.spread_rad,
-                    grasp.preshape_rad,
-                    Err(why.clone()),
-                );
+                let top = problem.planned_at(pose, grasp, Err(why.clone()));
                 unrepaired = Some(UnconstrainedOptimum {
                     pose,
                     objective: top.objective,
@@ -1666,6 +1668,29 @@ mod tests {
         let out = plan(&fits, &grasps, "top", &options, None).unwrap();
         assert_eq!((out.best_single.model, out.best_single.grasp_index), (1, 3));
         assert_eq!(out.best_single.model_name, "b");
+    }
+
+    #[test]
+    fn a_plan_approaches_as_the_grasp_it_came_from() {
+        let (fits, mut grasps) = grid_database();
+        let options = PlanOptions::with_kernel(Kernel::LAPLACE_DEFAULT);
+        let out = plan(&fits, &grasps, "top", &options, None).unwrap();
+        assert_eq!(out.plan.grasp.max_overtravel_m, None);
+        assert_eq!(out.best_single.grasp.max_overtravel_m, None);
+        // Each top grasp names its own overtravel: the plan takes the dominant
+        // grasp's (with its spread), best single its grasp's.
+        for (i, g) in grasps.iter_mut().enumerate() {
+            g.max_overtravel_m = Some(0.01 * i as f64);
+        }
+        let out = plan(&fits, &grasps, "top", &options, None).unwrap();
+        let dominant = &grasps[out.plan.dominant_grasp];
+        assert_eq!(out.plan.grasp.max_overtravel_m, dominant.max_overtravel_m);
+        assert_eq!(out.plan.grasp.spread_rad, dominant.spread_rad);
+        let single = &grasps[out.best_single.grasp_index];
+        assert_eq!(
+            out.best_single.grasp.max_overtravel_m,
+            single.max_overtravel_m
+        );
     }
 
     #[test]

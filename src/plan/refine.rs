@@ -119,6 +119,16 @@ impl Default for SimRefineOptions {
 }
 
 impl SimRefineOptions {
+    /// These options for `grasp` and every candidate refined from it: its approach
+    /// goes as far as the grasp names, if it does (a rim pinch no farther than its
+    /// pose).
+    pub fn for_grasp(&self, grasp: &PlannedGrasp) -> SimRefineOptions {
+        SimRefineOptions {
+            approach: self.approach.map(|a| a.for_grasp(grasp.max_overtravel_m)),
+            ..*self
+        }
+    }
+
     /// The defaults with the cell's approach to contact ([`ApproachOptions::from_cell`]).
     pub fn for_cell(config: &crate::config::CellConfig) -> SimRefineOptions {
         SimRefineOptions {
@@ -306,6 +316,7 @@ pub fn refine_in_sim(
             problem: "must be at most 1 (a fraction of the best fit's weight)",
         });
     }
+    let options = &options.for_grasp(start);
     let (lo, hi) = hand.spread_limits_rad;
     let start_eps = mean_epsilon(
         hand,
@@ -599,6 +610,7 @@ fn feasible(
         pregrasp_pose: pregrasp,
         spread_rad,
         preshape_rad: near.preshape_rad,
+        max_overtravel_m: near.max_overtravel_m,
         joints,
         pregrasp_joints,
         reachable: reach.is_some(),
@@ -681,7 +693,7 @@ mod tests {
                 &models,
                 &r.grasp.pose,
                 &r.grasp.preshape_rad.at_spread(r.grasp.spread_rad),
-                &refine,
+                &refine.for_grasp(&r.grasp),
             );
             assert!((again - r.mean_epsilon).abs() < 1e-12);
             assert!(r.grasp.reachable && r.evaluations <= 10);
@@ -714,6 +726,7 @@ mod tests {
             pregrasp_pose: pregrasp_pose(&on_rim, 0.1),
             spread_rad: 0.5,
             preshape_rad: crate::robot::PreshapeRad::OPEN,
+            max_overtravel_m: None,
             joints: None,
             pregrasp_joints: None,
             reachable: true,
@@ -747,6 +760,37 @@ mod tests {
         .unwrap();
         let rise_m = stop.object_from_palm.translation.vector.z - on_rim.translation.vector.z;
         assert!(rise_m > 0.02, "the palm closes {rise_m} m above the rim");
+
+        // The same grasp taught as a rim pinch, 4 cm higher, that names no
+        // overtravel closes where it is planned; with the cell's, it would go on
+        // down to the rim. Every candidate approaches as the start does.
+        let pinch = Pose::translation(0.0, 0.0, 0.04) * on_rim;
+        let pinch_start = PlannedGrasp {
+            pose: pinch,
+            pregrasp_pose: pregrasp_pose(&pinch, 0.1),
+            max_overtravel_m: Some(0.0),
+            ..start.clone()
+        };
+        let open = HandPose::open(pinch_start.spread_rad);
+        let eps = |o: &SimRefineOptions| simulated_epsilon(&hand, &object, &pinch, &open, o);
+        assert_eq!(eps(&options), 0.0);
+        let own = SimRefineOptions {
+            approach: options.approach.map(|a| a.for_grasp(Some(0.0))),
+            ..options
+        };
+        let r = refine_in_sim(
+            &pinch_start,
+            &hand,
+            &models,
+            &feasibility,
+            &|_| 0.0,
+            &options,
+        )
+        .unwrap();
+        assert_eq!(r.start_mean_epsilon, eps(&own));
+        assert!(r.start_mean_epsilon > 0.0, "{r:?}");
+        assert!(r.mean_epsilon >= r.start_mean_epsilon, "{r:?}");
+        assert_eq!(r.grasp.max_overtravel_m, Some(0.0));
     }
 
     /// A grasp whose approach stops with the fingertips on the table (a novel
@@ -773,6 +817,7 @@ mod tests {
             pregrasp_pose: pregrasp_pose(&pose, 0.1),
             spread_rad: 0.40613,
             preshape_rad: crate::robot::PreshapeRad([1.10436; 3]),
+            max_overtravel_m: None,
             joints: None,
             pregrasp_joints: None,
             reachable: true,

@@ -69,6 +69,7 @@ pub fn synthetic_problem(spec: &SyntheticSpec) -> (Vec<ModelFit>, Vec<ExampleGra
                 model_from_palm: theta,
                 spread_rad: rng.gen_range(0.0..PI / 2.0),
                 preshape_rad: crate::robot::PreshapeRad::OPEN,
+                max_overtravel_m: None,
                 q: rng.gen_range(0.02..0.3),
                 sigma: sigma(&mut rng),
             });
@@ -79,6 +80,7 @@ pub fn synthetic_problem(spec: &SyntheticSpec) -> (Vec<ModelFit>, Vec<ExampleGra
             model_from_palm: [0.0, 0.09, 0.06, PI / 2.0, 0.0, 0.0],
             spread_rad: 0.0,
             preshape_rad: crate::robot::PreshapeRad::OPEN,
+            max_overtravel_m: None,
             q: rng.gen_range(0.02..0.3),
             sigma: sigma(&mut rng),
         });

@@ -32,6 +32,14 @@ pub const TOLERANCE_M: f64 = 5e-5;
 /// cannot make the stopped hand touch.
 const BACKOFF_M: f64 = 2e-5;
 
+/// What is wrong with a grasp's own overtravel (m), if anything: it must be a
+/// finite distance >= 0.
+pub fn overtravel_problem(max_overtravel_m: Option<f64>) -> Option<String> {
+    let v = max_overtravel_m?;
+    (!(v.is_finite() && v >= 0.0))
+        .then(|| format!("max_overtravel_m = {v} must be a finite distance >= 0 (m)"))
+}
+
 /// The approach's geometry.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ApproachOptions {
@@ -57,6 +65,16 @@ impl ApproachOptions {
         ApproachOptions {
             pregrasp_m: config.robot.pregrasp_offset_m,
             max_overtravel_m: config.approach.max_overtravel_m,
+        }
+    }
+
+    /// These options for a grasp that names its own overtravel (a fingertip pinch
+    /// taught with the palm clear of the object goes no farther than its pose);
+    /// `None` keeps this one.
+    pub fn for_grasp(self, max_overtravel_m: Option<f64>) -> ApproachOptions {
+        ApproachOptions {
+            max_overtravel_m: max_overtravel_m.unwrap_or(self.max_overtravel_m),
+            ..self
         }
     }
 
@@ -287,6 +305,47 @@ mod tests {
             "{stop:?}"
         );
         assert!((stop.beyond_plan_m - 0.020).abs() < 1e-4, "{stop:?}");
+    }
+
+    #[test]
+    fn a_grasps_own_overtravel_replaces_the_cells() {
+        let robot = shipped_robot();
+        let hand = hand_of(&robot);
+        let ahead = reach_ahead(&hand, 0.0);
+        // The box's face 30 mm beyond the plan: within the cell's 50 mm.
+        let block = GraspObject::new(
+            &cuboid([0.0, 0.0, ahead + 0.030 + 0.05], [0.4, 0.4, 0.1]),
+            Path::new("block"),
+        )
+        .unwrap();
+        let cell = ApproachOptions::default();
+        let beyond = |own: Option<f64>| {
+            let stop = approach_to_contact(
+                &hand,
+                &block,
+                &Pose::identity(),
+                &HandPose::open(0.0),
+                &cell.for_grasp(own),
+            )
+            .unwrap();
+            (stop.beyond_plan_m, stop.contact.is_some())
+        };
+        let (at_contact, touched) = beyond(None);
+        assert!((at_contact - 0.030).abs() < 1e-4 && touched, "{at_contact}");
+        // A rim pinch's 0: the hand stops at its pose, clear of the box.
+        assert_eq!(beyond(Some(0.0)), (0.0, false));
+        let (short, touched) = beyond(Some(0.02));
+        assert!((short - 0.02).abs() < 1e-12 && !touched, "{short}");
+        // It still stops at a contact before its end.
+        let (long, touched) = beyond(Some(0.04));
+        assert!((long - 0.030).abs() < 1e-4 && touched, "{long}");
+        assert_eq!(cell.for_grasp(None), cell);
+        for bad in [-0.01, f64::NAN, f64::INFINITY] {
+            let problem = overtravel_problem(Some(bad)).unwrap();
+            assert!(problem.contains("max_overtravel_m"), "{problem}");
+        }
+        assert_eq!(overtravel_problem(Some(0.0)), None);
+        assert_eq!(overtravel_problem(None), None);
     }
 
     #[test]
