@@ -382,20 +382,20 @@ mod tests {
         let robot = crate::robot::shipped_robot();
         let hand =
             HandModel::from_description(&robot.description, "bh_palm", Path::new("x")).unwrap();
-        for bad in [
-            "preshape_rad = 2.5",
-            "preshape_rad = [0.0, -0.1, 0.0]",
-            "preshape_rad = nan",
+        // So is a grasp's own overtravel out of range.
+        for (bad, field) in [
+            ("preshape_rad = 2.5", "preshape_rad"),
+            ("preshape_rad = [0.0, -0.1, 0.0]", "preshape_rad"),
+            ("preshape_rad = nan", "preshape_rad"),
+            ("max_overtravel_m = -0.01", "max_overtravel_m"),
+            ("max_overtravel_m = nan", "max_overtravel_m"),
         ] {
             let err = parse(&text(bad))
                 .unwrap()
                 .check(Category::Hammer, &dir, &hand)
                 .unwrap_err()
                 .to_string();
-            assert!(
-                err.contains("h/use") && err.contains("preshape_rad"),
-                "{bad}: {err}"
-            );
+            assert!(err.contains("h/use") && err.contains(field), "{bad}: {err}");
         }
         parse(&text("preshape_rad = 1.2"))
             .unwrap()
@@ -410,16 +410,5 @@ mod tests {
         let checked = file.check(Category::Hammer, &dir, &hand).unwrap();
         assert_eq!(checked[0].max_overtravel_m, Some(0.0));
         assert_eq!(grasp("").max_overtravel_m, None);
-        for bad in ["max_overtravel_m = -0.01", "max_overtravel_m = nan"] {
-            let err = parse(&text(bad))
-                .unwrap()
-                .check(Category::Hammer, &dir, &hand)
-                .unwrap_err()
-                .to_string();
-            assert!(
-                err.contains("h/use") && err.contains("max_overtravel_m"),
-                "{bad}: {err}"
-            );
-        }
     }
 }
