@@ -133,12 +133,35 @@ pub const LINK_FAULTS: [&str; 2] = ["arm_dropped_to_monitor", "arm_measurement_l
 /// the end, so a campaign runs the trial again (a lab resets the robot and repeats
 /// it) and reports the latest (`trial::report`).
 pub fn ended_on_link_fault(trial: &TrialRecord) -> bool {
-    trial
+    link_fault(trial).is_some()
+}
+
+/// The link fault ([`LINK_FAULTS`]) `trial` ended on, if any.
+pub fn link_fault(trial: &TrialRecord) -> Option<&'static str> {
+    let kind = trial
         .trial
         .outcome
-        .as_ref()
-        .and_then(|o| o.get("execution_error")?.as_str())
-        .is_some_and(|kind| LINK_FAULTS.contains(&kind))
+        .as_ref()?
+        .get("execution_error")?
+        .as_str()?;
+    LINK_FAULTS.iter().copied().find(|k| *k == kind)
+}
+
+/// The link fault the trial that the cell ran as `cell_trial_id` (the id of its
+/// request, which the log stage records in the outcome) ended on, if it is in
+/// `trials` and ended on one: `cell demo` runs such a trial again at once.
+pub fn link_fault_of(trials: &[TrialRecord], cell_trial_id: u64) -> Option<&'static str> {
+    trials
+        .iter()
+        .rev()
+        .find(|t| {
+            t.trial
+                .outcome
+                .as_ref()
+                .and_then(|o| o.get("cell_trial_id")?.as_u64())
+                == Some(cell_trial_id)
+        })
+        .and_then(link_fault)
 }
 
 /// The campaign trials in `trials` (of a trial log) that have a grade and did not
@@ -494,6 +517,15 @@ mod tests {
         let refused = failed(3, 2, "unsafe_motion");
         assert!(ended_on_link_fault(&dropped) && ended_on_link_fault(&late));
         assert!(!ended_on_link_fault(&refused));
+        // The demo finds a trial by the id the cell ran it under.
+        let mut ran = vec![dropped.clone(), refused.clone()];
+        for (t, cell_id) in ran.iter_mut().zip([70, 71]) {
+            let outcome = t.trial.outcome.as_mut().unwrap();
+            outcome["cell_trial_id"] = serde_json::json!(cell_id);
+        }
+        assert_eq!(link_fault_of(&ran, 70), Some("arm_dropped_to_monitor"));
+        assert_eq!(link_fault_of(&ran, 71), None);
+        assert_eq!(link_fault_of(&ran, 72), None);
         let key = |placement| TrialKey {
             campaign_id: "c1".into(),
             object: "m1".into(),

@@ -2,7 +2,7 @@
 
 use super::emit;
 use crate::cell::campaign::{
-    graded_trials, CampaignSpec, NovelObject, PlannedTrial, TaskReport, LINK_FAULTS,
+    graded_trials, link_fault_of, CampaignSpec, NovelObject, PlannedTrial, TaskReport, LINK_FAULTS,
 };
 use crate::cell::harness::{novel_object, placement_rng, random_placement, Cell, HarnessOptions};
 use crate::cell::plan::{Databases, METHODS};
@@ -155,6 +155,11 @@ pub struct DemoArgs {
     /// Who grades: the physics lift test or static epsilon (both verdicts are logged).
     #[arg(long, value_enum, default_value_t = crate::cell::log::ObserverKind::Physics)]
     pub observer: crate::cell::log::ObserverKind,
+    /// Repeats of a trial that ended on a link fault (the robot dropped to monitor
+    /// mode, or its measurements stopped): a lab resets the robot and runs it
+    /// again, as `cell campaign` does; the summary counts the latest run.
+    #[arg(long, default_value_t = 2)]
+    pub link_fault_repeats: u32,
     /// Print one JSON document instead of lines.
     #[arg(long)]
     pub json: bool,
@@ -511,16 +516,13 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
     let mut cell = Cell::start(options, (*domain).clone()).context("starting the cell")?;
     let bar = progress(args.trials as u64, args.json);
     let mut lines = Vec::new();
-    for i in 0..args.trials {
-        if stop_requested() {
-            break;
-        }
-        cell.supervise()?;
+    let mut repeated = 0;
+    'trials: for i in 0..args.trials {
         let novel = world.object(i);
         let mut rng = placement_rng(args.seed, i as u64);
         let trial_seed = args.seed.wrapping_mul(1000).wrapping_add(i as u64);
-        let setup = TrialSetup {
-            trial_id: cell.new_trial_id(),
+        let mut setup = TrialSetup {
+            trial_id: 0,
             category,
             object: novel.object.clone(),
             placement: novel.on_table(random_placement(&config, &mut rng, 0)),
@@ -531,20 +533,44 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
             lab: world.lab.trial_draw(args.seed, trial_seed),
         };
         bar.set_message(setup.object.name.clone());
-        let result = cell.run_trial(
-            Some(&setup),
-            setup.trial_id,
-            &args.kind.category,
-            &args.task,
-            &args.method,
-            &mut |_| {},
-        )?;
-        let line = TrialLine::new(&setup, &args.task, &args.method, result.as_ref());
-        if !args.json {
-            bar.suspend(|| println!("{}", line.text()));
+        for attempt in 0..=args.link_fault_repeats {
+            if stop_requested() {
+                break 'trials;
+            }
+            cell.supervise()?;
+            setup.trial_id = cell.new_trial_id();
+            let result = cell.run_trial(
+                Some(&setup),
+                setup.trial_id,
+                &args.kind.category,
+                &args.task,
+                &args.method,
+                &mut |_| {},
+            )?;
+            let line = TrialLine::new(&setup, &args.task, &args.method, result.as_ref());
+            let fault = match result {
+                Some(_) => link_fault_of(
+                    &TrialLog::open_existing(cell.log_path())?.trials()?,
+                    setup.trial_id,
+                ),
+                None => None,
+            };
+            let again = fault.is_some() && attempt < args.link_fault_repeats;
+            if !args.json {
+                let note = match fault {
+                    Some(kind) if again => format!("  -- link fault ({kind}): running it again"),
+                    Some(kind) => format!("  -- link fault ({kind}), the last repeat"),
+                    None => String::new(),
+                };
+                bar.suspend(|| println!("{}{note}", line.text()));
+            }
+            if !again {
+                lines.push(line);
+                break;
+            }
+            repeated += 1;
         }
         bar.inc(1);
-        lines.push(line);
     }
     bar.finish_and_clear();
     let leftover = cell.stop()?;
@@ -553,18 +579,26 @@ pub fn demo(config_path: &Path, args: DemoArgs) -> anyhow::Result<ExitCode> {
     let summary = Summary::of(&lines);
     #[derive(Serialize)]
     struct DemoOutput {
+        /// The latest run of each trial.
         trials: Vec<TrialLine>,
         summary: Summary,
+        /// Runs repeated after a link fault (`--link-fault-repeats`).
+        repeated: usize,
         leftover_shm_files: usize,
     }
     let out = DemoOutput {
         trials: lines,
         summary,
+        repeated,
         leftover_shm_files: leftover.len(),
     };
     emit(args.json, &out, |o| {
+        let repeats = match o.repeated {
+            0 => String::new(),
+            n => format!("{n} run(s) repeated after a link fault; the summary counts the latest\n"),
+        };
         format!(
-            "{}stopped cleanly: {} leftover shared-memory files\n",
+            "{}{repeats}stopped cleanly: {} leftover shared-memory files\n",
             o.summary.text(),
             o.leftover_shm_files
         )
