@@ -225,13 +225,17 @@ impl HandEmulator {
         }
     }
 
-    /// After a frame: the hand's state goes to `feel`.
+    /// After a frame: a finger sent no farther than the object lets go of it
+    /// ([`EmulatedPuck::letting_go`]), and the hand's state goes to `feel`.
     fn feel_after(&mut self, now: Duration) {
         let Some(feel) = self.feel.as_mut() else {
             return;
         };
         for p in &mut self.pucks {
             p.update(now);
+            if p.letting_go() {
+                p.contact_counts = None;
+            }
         }
         let holding = self.pucks.iter().any(EmulatedPuck::pressing);
         let mut pose = crate::robot::HandPose::OPEN;
@@ -505,6 +509,8 @@ struct EmulatedPuck {
     contact_counts: Option<f64>,
     contact_strain: i32,
     position: f64,
+    /// Where the last move was sent (counts).
+    target: f64,
     motion: Option<Motion>,
     booting_until: Option<Duration>,
     homed: bool,
@@ -554,6 +560,7 @@ impl EmulatedPuck {
             contact_counts,
             contact_strain: config.contact_strain,
             position: f64::from(config.initial_counts[puck.index()]),
+            target: f64::from(config.initial_counts[puck.index()]),
             motion: None,
             booting_until: None,
             homed: false,
@@ -616,6 +623,20 @@ impl EmulatedPuck {
     fn finish(&mut self, end_mode: i32) {
         self.motion = None;
         self.put(Property::Mode, end_mode);
+    }
+
+    /// A finger sent to a target no farther than its contact (opening the hand),
+    /// or at rest short of it: it does not push on the object, so with
+    /// a [`Feel`] the object is let go and the next closing asks where it is. A
+    /// contact at the open angle (a finger that touches the object before it
+    /// closes) would otherwise count as pressing for ever, open hand included:
+    /// the arm's side would be told that the hand holds the object, and feel no
+    /// contact on the next approach.
+    fn letting_go(&self) -> bool {
+        let Some(contact) = self.contact_counts.filter(|_| self.puck.is_finger()) else {
+            return false;
+        };
+        self.target <= contact + 0.5 || (self.motion.is_none() && self.position < contact - 0.5)
     }
 
     /// A finger resting on (or pushing into) its contact.
@@ -784,6 +805,7 @@ impl EmulatedPuck {
         });
         let speed = f64::from(speed_counts_per_ms.max(1)) * 1e3;
         let accel = f64::from(self.prop(Property::Accel).max(1)) * 1e6;
+        self.target = f64::from(target);
         let request = MoveRequest {
             to: f64::from(target),
             speed,
@@ -914,6 +936,66 @@ mod tests {
         assert_eq!(emu.position_counts(Puck::F3), Some(195_000));
         assert_eq!(emu.position_counts(Puck::Spread), Some(35_950));
         assert_eq!(emu.property(Puck::Spread, Property::Mode), Some(mode::PID));
+    }
+
+    /// A scripted object: F1 touches it at the open angle, F2 at 1 rad; it stays
+    /// in the hand; the emulator's reports are kept.
+    struct Touching {
+        asked: Arc<std::sync::atomic::AtomicUsize>,
+        holding: Arc<AtomicBool>,
+    }
+
+    impl Feel for Touching {
+        fn contacts(&mut self, _start: &crate::robot::HandPose) -> [Option<f64>; 3] {
+            self.asked.fetch_add(1, Ordering::SeqCst);
+            [Some(0.0), Some(1.0), None]
+        }
+        fn still_held(&mut self) -> bool {
+            true
+        }
+        fn hand_moved(&mut self, _pose: &crate::robot::HandPose, holding: bool) {
+            self.holding.store(holding, Ordering::SeqCst);
+        }
+    }
+
+    /// Opening the hand lets go of the object, also one a finger touched at the
+    /// open angle: the hand no longer reports holding it, and the next closing
+    /// asks the world again. (It used to count as held for ever, so the arm's
+    /// simulator felt no object on every later approach.)
+    #[test]
+    fn opening_the_hand_lets_go_of_an_object_touched_at_the_open_angle() {
+        let (emu, clock) = emulator(HandEmulatorConfig::default());
+        let asked = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let holding = Arc::new(AtomicBool::new(false));
+        let mut emu = emu.with_feel(Box::new(Touching {
+            asked: asked.clone(),
+            holding: holding.clone(),
+        }));
+        boot_and_home(&mut emu, &clock);
+        emu.handle(&set_frame(group_id(5), Property::Cmd, command::C));
+        clock.advance(Duration::from_secs(5));
+        emu.handle(&get_frame(11, Property::Sg));
+        assert!(holding.load(Ordering::SeqCst));
+        assert_eq!(asked.load(Ordering::SeqCst), 1);
+        assert_eq!(emu.property(Puck::F1, Property::Sg), Some(2900));
+        emu.handle(&set_frame(group_id(5), Property::Cmd, command::O));
+        clock.advance(Duration::from_secs(5));
+        emu.handle(&get_frame(11, Property::Sg));
+        assert!(
+            !holding.load(Ordering::SeqCst),
+            "the open hand holds nothing"
+        );
+        assert_eq!(emu.property(Puck::F1, Property::Sg), Some(2000));
+        assert_eq!(emu.position_counts(Puck::F2), Some(0));
+        emu.handle(&set_frame(group_id(5), Property::Cmd, command::C));
+        assert_eq!(
+            asked.load(Ordering::SeqCst),
+            2,
+            "the next closing asks again"
+        );
+        clock.advance(Duration::from_secs(5));
+        emu.handle(&get_frame(11, Property::Sg));
+        assert!(holding.load(Ordering::SeqCst));
     }
 
     #[test]
