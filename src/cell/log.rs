@@ -324,17 +324,19 @@ impl Logger {
         let Some(end) = &trial.end else {
             return Err(CellError::Invalid("no execution end".into()));
         };
+        let mut stopped_after_closing = None;
         if !matches!(end.phase(), Ok(Phase::Done)) {
             let kind = error_kind(end.error_code);
-            // The hand closed and felt nothing, or the object did not stay in it:
-            // the executor stopped because of the grasp, not of the devices, so the
-            // observer judges that grasp (and why it failed) like any executed one.
+            // The hand closed and felt too little, or the object did not stay in
+            // it: the executor stopped because of the grasp, not of the devices. The
+            // trial failed; the observer judges that grasp for why.
             let grasp_failed = matches!(kind, "no_contact" | "grasp_lost");
             if !(grasp_failed && trial.closing_joints.is_some()) {
                 return Ok(Attempt::Stopped {
                     kind: kind.to_string(),
                 });
             }
+            stopped_after_closing = Some(kind.to_string());
         }
         let base_from_palm = match trial.closing_joints {
             Some(q) => self.robot.arm().palm(&q),
@@ -345,6 +347,7 @@ impl Logger {
             spread_rad: plan.spread_rad,
             preshape_rad: crate::robot::PreshapeRad(plan.preshape_rad),
             best_fit: best_fit(trial.fits.as_ref()),
+            stopped_after_closing,
         })
     }
 
@@ -401,6 +404,7 @@ impl Logger {
                             spread_rad,
                             preshape_rad,
                             best_fit,
+                            stopped_after_closing,
                             ..
                         },
                         Some(lab),
@@ -410,6 +414,7 @@ impl Logger {
                         spread_rad,
                         preshape_rad,
                         best_fit,
+                        stopped_after_closing,
                     },
                     (attempt, _, _) => attempt,
                 };

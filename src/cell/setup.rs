@@ -217,7 +217,9 @@ impl TrialSetup {
     /// left to the configuration) for the simulated devices, which reload `path`
     /// when it changes ([`crate::sim::world::WorldWatch`]); atomically.
     /// A training-family object is named by category and seed; any other (held-apart,
-    /// a user's mesh) is written next to the scene as `object-<trial id>.ply`.
+    /// a user's mesh) is written next to the scene as `object-<trial id>.ply`, and
+    /// the meshes of earlier trials' scenes there are removed (a campaign left one
+    /// per trial, a quarter of a megabyte each).
     pub fn write_sim_scene(&self, path: &Path) -> Result<(), CellError> {
         let dir = path.parent().unwrap_or(Path::new("."));
         crate::fsio::create_dir_all(dir)?;
@@ -249,7 +251,30 @@ impl TrialSetup {
             path: path.to_path_buf(),
             problem: e.to_string(),
         })?;
-        Ok(crate::fsio::write(path, text.as_bytes())?)
+        crate::fsio::write(path, text.as_bytes())?;
+        remove_earlier_meshes(dir, file.objects[0].mesh.as_deref());
+        Ok(())
+    }
+}
+
+/// Removes the `object-<trial id>.ply` meshes in `dir` but `keep`: earlier trials'
+/// scene objects, which the scene just written no longer names. A file that cannot
+/// be removed is logged and left.
+fn remove_earlier_meshes(dir: &Path, keep: Option<&Path>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        let earlier = name.starts_with("object-")
+            && name.ends_with(".ply")
+            && keep.is_none_or(|k| k.as_os_str() != entry.file_name().as_os_str());
+        if earlier {
+            if let Err(e) = std::fs::remove_file(entry.path()) {
+                tracing::warn!("{}: not removed: {e}", entry.path().display());
+            }
+        }
     }
 }
 
@@ -326,6 +351,29 @@ mod tests {
         let back = TrialSetup::read(&dir, 21).unwrap().unwrap();
         assert_eq!(back, setup);
         let held_apart = back.mesh().unwrap();
+        // The simulated devices' scene names the object's mesh beside it; the next
+        // trial's scene replaces it.
+        let scene = dir.join("sim").join("scene.toml");
+        let meshes = || {
+            let mut names: Vec<String> = std::fs::read_dir(dir.join("sim"))
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .filter(|n| n.ends_with(".ply"))
+                .collect();
+            names.sort();
+            names
+        };
+        setup.write_sim_scene(&scene).unwrap();
+        assert_eq!(meshes(), ["object-21.ply"]);
+        let next = TrialSetup {
+            trial_id: 22,
+            ..setup.clone()
+        };
+        next.write_sim_scene(&scene).unwrap();
+        assert_eq!(meshes(), ["object-22.ply"]);
+        assert!(std::fs::read_to_string(&scene)
+            .unwrap()
+            .contains("object-22.ply"));
         assert_ne!(
             held_apart,
             generate_in(Family::Training, Category::Mug, 3).0

@@ -914,6 +914,7 @@ impl<'a> NovelRun<'a> {
                 spread_rad: grasp.spread_rad,
                 preshape_rad: grasp.preshape_rad,
                 best_fit: placed.best_fit,
+                stopped_after_closing: None,
             },
             Some((palm, preshape)),
         )

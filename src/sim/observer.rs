@@ -147,6 +147,10 @@ pub enum Attempt {
         preshape_rad: PreshapeRad,
         /// Pose of the best-fitting model (lowest eps), for the cause of a failure.
         best_fit: Option<Pose>,
+        /// The executor's error kind when it closed the hand there and then stopped
+        /// (it felt too few fingers, or lost them in the hold): the object was not
+        /// lifted, so the trial failed whatever the grasp would have done.
+        stopped_after_closing: Option<String>,
     },
 }
 
@@ -335,6 +339,20 @@ impl GradeRule {
     }
 }
 
+impl Verdict {
+    /// This verdict of a grasp the executor stopped after closing: a failure, of
+    /// the verdict's own cause when the grasp would have failed anyway, else of the
+    /// execution.
+    fn stopped(self) -> Verdict {
+        Verdict {
+            grade: Grade::Failure,
+            cause: Some(self.cause.unwrap_or(FailureCause::Execution)),
+            rule: GradeRule::ExecutionStopped,
+            cause_rule: Some(self.cause_rule.unwrap_or(CauseRule::Executor)),
+        }
+    }
+}
+
 /// A verdict from a rule, with the cause of anything but a success.
 fn verdict(rule: GradeRule, blame: (FailureCause, CauseRule)) -> Verdict {
     let grade = rule.grade();
@@ -475,7 +493,7 @@ impl Observer {
         base_from_object: &Pose,
         attempt: &Attempt,
     ) -> Result<Observation, ObserverError> {
-        let (base_from_palm, preshape, best_fit) = match attempt {
+        let (base_from_palm, preshape, best_fit, stopped) = match attempt {
             Attempt::NotPlanned { cause, detail } => {
                 return Ok(self.unexecuted(
                     GradeRule::NotPlanned,
@@ -495,10 +513,12 @@ impl Observer {
                 spread_rad,
                 preshape_rad,
                 best_fit,
+                stopped_after_closing,
             } => (
                 base_from_palm,
                 preshape_rad.at_spread(*spread_rad),
                 best_fit,
+                stopped_after_closing,
             ),
         };
         let simulation = |source| ObserverError::Simulation {
@@ -593,11 +613,9 @@ impl Observer {
             String::new()
         };
         let physics = verdict(GradeRule::Lift(lift.rule), blame);
-
-        let chosen = match self.mode {
-            ObserverMode::Physics => physics,
-            ObserverMode::Static => static_epsilon,
-        };
+        let stopped_note = stopped.as_ref().map_or(String::new(), |kind| {
+            format!("execution stopped after closing ({kind}), not lifted; had it been lifted: ")
+        });
         let reg = registration.map_or(String::new(), |e| {
             format!(
                 "; best fit {:.1} mm, tilt {:.0} deg, yaw {:.0} deg off",
@@ -615,7 +633,7 @@ impl Observer {
             String::new()
         };
         let note = format!(
-            "{} observer: physics {:?} ({}: rose {:.0} mm, slip {:.1} mm, turn {:.1} deg, touching {}{in_table}{run_grades});              static {:?} ({}: epsilon {epsilon:.3}, {contacts} parts){reg}",
+            "{} observer: {stopped_note}physics {:?} ({}: rose {:.0} mm, slip {:.1} mm, turn {:.1} deg, touching {}{in_table}{run_grades});              static {:?} ({}: epsilon {epsilon:.3}, {contacts} parts){reg}",
             self.mode,
             physics.grade,
             physics.rule.phrase(),
@@ -630,6 +648,16 @@ impl Observer {
             static_epsilon.grade,
             static_epsilon.rule.phrase(),
         );
+        // What each verdict says of the trial: a grasp the executor stopped was
+        // never lifted; the simulation only names why it failed.
+        let (physics, static_epsilon) = match stopped {
+            Some(_) => (physics.stopped(), static_epsilon.stopped()),
+            None => (physics, static_epsilon),
+        };
+        let chosen = match self.mode {
+            ObserverMode::Physics => physics,
+            ObserverMode::Static => static_epsilon,
+        };
         Ok(Observation {
             mode: self.mode,
             grade: chosen.grade,
@@ -746,22 +774,33 @@ mod tests {
         (Observer::new(&config).unwrap(), db)
     }
 
-    #[test]
-    fn a_trained_grasp_on_its_own_model_succeeds_and_a_far_one_misses() {
-        let (observer, db) = observer();
-        // The best side grasp of the database on its own model, placed on the table.
+    /// The best side grasp of the database, its model's index, and where the
+    /// model stands on the table.
+    fn best_side_grasp(db: &CategoryDb) -> (&crate::category::GraspEntry, usize, Pose) {
         let grasp = db
             .grasps_for("side")
             .max_by(|a, b| a.q.total_cmp(&b.q))
             .unwrap();
         let model = db.model_index(&grasp.model).unwrap();
-        let base_from_object = pose_from_params(&[0.6, 0.1, 0.0, 0.0, 0.0, 0.7]);
+        (
+            grasp,
+            model,
+            pose_from_params(&[0.6, 0.1, 0.0, 0.0, 0.0, 0.7]),
+        )
+    }
+
+    #[test]
+    fn a_trained_grasp_on_its_own_model_succeeds_and_a_far_one_misses() {
+        let (observer, db) = observer();
+        // The best side grasp of the database on its own model, placed on the table.
+        let (grasp, model, base_from_object) = best_side_grasp(&db);
         let model_from_palm = grasp.pose.to_pose("grasp").unwrap();
         let executed = Attempt::Executed {
             base_from_palm: base_from_object * model_from_palm,
             spread_rad: grasp.spread_rad,
             preshape_rad: grasp.preshape_rad,
             best_fit: Some(base_from_object),
+            stopped_after_closing: None,
         };
         let seen = observer
             .grade("model", &db.meshes[model], &base_from_object, &executed)
@@ -785,6 +824,7 @@ mod tests {
             spread_rad: grasp.spread_rad,
             preshape_rad: grasp.preshape_rad,
             best_fit: Some(beside * base_from_object),
+            stopped_after_closing: None,
         };
         let seen = observer
             .grade("model", &db.meshes[model], &base_from_object, &missed)
@@ -817,6 +857,55 @@ mod tests {
             (stopped.grade, stopped.cause),
             (Grade::Failure, Some(FailureCause::Execution))
         );
+    }
+
+    #[test]
+    fn a_grasp_the_executor_stopped_after_closing_fails_and_the_simulation_names_why() {
+        let (observer, db) = observer();
+        let (grasp, model, base_from_object) = best_side_grasp(&db);
+        let attempt = |offset: Pose, stopped: Option<&str>| Attempt::Executed {
+            base_from_palm: offset * base_from_object * grasp.pose.to_pose("grasp").unwrap(),
+            spread_rad: grasp.spread_rad,
+            preshape_rad: grasp.preshape_rad,
+            best_fit: Some(offset * base_from_object),
+            stopped_after_closing: stopped.map(str::to_string),
+        };
+        let grade = |a: &Attempt| {
+            observer
+                .grade("model", &db.meshes[model], &base_from_object, a)
+                .unwrap()
+        };
+        // A grasp that holds when lifted, stopped by the executor (it felt one
+        // finger): never lifted, a failure of the execution in both verdicts.
+        let on_model = Pose::identity();
+        assert_eq!(
+            grade(&attempt(on_model, None)).static_epsilon.grade,
+            Grade::Success
+        );
+        let seen = grade(&attempt(on_model, Some("no_contact")));
+        for v in [&seen.physics, &seen.static_epsilon] {
+            assert_eq!(v.grade, Grade::Failure, "{seen:?}");
+            assert_eq!(v.rule, GradeRule::ExecutionStopped);
+            assert_eq!(v.cause, Some(FailureCause::Execution));
+            assert_eq!(v.cause_rule, Some(CauseRule::Executor));
+        }
+        assert_eq!(
+            (seen.grade, seen.cause),
+            (Grade::Failure, Some(FailureCause::Execution))
+        );
+        assert!(
+            seen.note.contains("no_contact") && seen.note.contains("static Success"),
+            "{}",
+            seen.note
+        );
+        // A grasp that would have failed anyway keeps the simulation's cause.
+        let beside = pose_from_params(&[0.0, 0.3, 0.0, 0.0, 0.0, 0.0]);
+        let seen = grade(&attempt(beside, Some("no_contact")));
+        assert_eq!(
+            (seen.grade, seen.cause),
+            (Grade::Failure, Some(FailureCause::Registration))
+        );
+        assert_eq!(seen.physics.cause_rule, Some(CauseRule::RegistrationOffset));
     }
 
     #[test]

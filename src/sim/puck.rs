@@ -171,6 +171,9 @@ impl HandEmulator {
     /// The same emulator with contacts from `feel` instead of fixed angles.
     pub fn with_feel(mut self, feel: Box<dyn Feel>) -> HandEmulator {
         self.feel = Some(feel);
+        for p in &mut self.pucks {
+            p.lets_go_when_opened = true;
+        }
         self
     }
 
@@ -217,25 +220,26 @@ impl HandEmulator {
                 finger => start.flex_rad[finger.index()] = rad,
             }
         }
+        // A finger already on its way keeps the contact it set out for (its
+        // motion stalls there): the fingers are sent one at a time, and the world
+        // asked again from a start with a finger half closed may answer a hair
+        // differently; the finger would stall at the old angle and, its contact
+        // moved, not count as pressing (no strain on the executor's side).
         let contacts = feel.contacts(&start);
         for p in &mut self.pucks {
-            if p.puck.is_finger() {
+            if p.puck.is_finger() && p.motion.is_none() {
                 p.contact_counts = contacts[p.puck.index()].map(|rad| rad * p.counts_per_rad);
             }
         }
     }
 
-    /// After a frame: a finger sent no farther than the object lets go of it
-    /// ([`EmulatedPuck::letting_go`]), and the hand's state goes to `feel`.
+    /// After a frame: the hand's state goes to `feel`.
     fn feel_after(&mut self, now: Duration) {
         let Some(feel) = self.feel.as_mut() else {
             return;
         };
         for p in &mut self.pucks {
             p.update(now);
-            if p.letting_go() {
-                p.contact_counts = None;
-            }
         }
         let holding = self.pucks.iter().any(EmulatedPuck::pressing);
         let mut pose = crate::robot::HandPose::OPEN;
@@ -509,8 +513,9 @@ struct EmulatedPuck {
     contact_counts: Option<f64>,
     contact_strain: i32,
     position: f64,
-    /// Where the last move was sent (counts).
-    target: f64,
+    /// With a [`Feel`]: a finger sent no farther than its contact lets go of the
+    /// object ([`EmulatedPuck::start_move`]).
+    lets_go_when_opened: bool,
     motion: Option<Motion>,
     booting_until: Option<Duration>,
     homed: bool,
@@ -560,7 +565,7 @@ impl EmulatedPuck {
             contact_counts,
             contact_strain: config.contact_strain,
             position: f64::from(config.initial_counts[puck.index()]),
-            target: f64::from(config.initial_counts[puck.index()]),
+            lets_go_when_opened: false,
             motion: None,
             booting_until: None,
             homed: false,
@@ -623,20 +628,6 @@ impl EmulatedPuck {
     fn finish(&mut self, end_mode: i32) {
         self.motion = None;
         self.put(Property::Mode, end_mode);
-    }
-
-    /// A finger sent to a target no farther than its contact (opening the hand),
-    /// or at rest short of it: it does not push on the object, so with
-    /// a [`Feel`] the object is let go and the next closing asks where it is. A
-    /// contact at the open angle (a finger that touches the object before it
-    /// closes) would otherwise count as pressing for ever, open hand included:
-    /// the arm's side would be told that the hand holds the object, and feel no
-    /// contact on the next approach.
-    fn letting_go(&self) -> bool {
-        let Some(contact) = self.contact_counts.filter(|_| self.puck.is_finger()) else {
-            return false;
-        };
-        self.target <= contact + 0.5 || (self.motion.is_none() && self.position < contact - 0.5)
     }
 
     /// A finger resting on (or pushing into) its contact.
@@ -805,7 +796,20 @@ impl EmulatedPuck {
         });
         let speed = f64::from(speed_counts_per_ms.max(1)) * 1e3;
         let accel = f64::from(self.prop(Property::Accel).max(1)) * 1e6;
-        self.target = f64::from(target);
+        // A finger sent no farther than its contact (opening the hand) does not
+        // push on the object: with a [`Feel`] it lets go, and the next closing
+        // asks where the object is. A contact at the open angle (a finger that
+        // touches the object before it closes) would otherwise count as pressing
+        // for ever, open hand included: the arm's side would be told that the hand
+        // holds the object, and feel no contact on the next approach.
+        if self.lets_go_when_opened
+            && self.puck.is_finger()
+            && self
+                .contact_counts
+                .is_some_and(|c| f64::from(target) <= c + 0.5)
+        {
+            self.contact_counts = None;
+        }
         let request = MoveRequest {
             to: f64::from(target),
             speed,
@@ -996,6 +1000,49 @@ mod tests {
         clock.advance(Duration::from_secs(5));
         emu.handle(&get_frame(11, Property::Sg));
         assert!(holding.load(Ordering::SeqCst));
+    }
+
+    /// A world that answers a hair differently at every ask: the closing as the
+    /// static auto-grasp sees it from a start with a finger half closed.
+    struct Shifting {
+        asked: usize,
+    }
+
+    impl Feel for Shifting {
+        fn contacts(&mut self, _start: &crate::robot::HandPose) -> [Option<f64>; 3] {
+            self.asked += 1;
+            [Some(1.0 + 0.01 * self.asked as f64); 3]
+        }
+        fn still_held(&mut self) -> bool {
+            true
+        }
+        fn hand_moved(&mut self, _pose: &crate::robot::HandPose, _holding: bool) {}
+    }
+
+    /// The driver closes the fingers one at a time (CMD C to F1, F2, F3). Each
+    /// finger presses where it stalled, whatever the world answered when the next
+    /// finger was sent: every finger feels the object. (A finger on its way used
+    /// to take the later answer, stall at the earlier one and show no strain: the
+    /// executor then stopped with "no_contact" on grasps that hold.)
+    #[test]
+    fn fingers_closed_one_at_a_time_each_press_where_they_stall() {
+        let (emu, clock) = emulator(HandEmulatorConfig::default());
+        let mut emu = emu.with_feel(Box::new(Shifting { asked: 0 }));
+        boot_and_home(&mut emu, &clock);
+        for node in [11, 12, 13] {
+            emu.handle(&set_frame(node, Property::Cmd, command::C));
+            clock.advance(Duration::from_millis(5));
+        }
+        clock.advance(Duration::from_secs(5));
+        for finger in Puck::FINGERS {
+            assert_eq!(emu.property(finger, Property::Sg), Some(2900), "{finger}");
+        }
+        let f1 = emu.position_counts(Puck::F1).unwrap();
+        let f3 = emu.position_counts(Puck::F3).unwrap();
+        assert!(
+            f1 < f3,
+            "each stalled where the world said when it was sent"
+        );
     }
 
     #[test]
