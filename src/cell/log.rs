@@ -324,20 +324,22 @@ impl Logger {
         let Some(end) = &trial.end else {
             return Err(CellError::Invalid("no execution end".into()));
         };
-        let mut stopped_after_closing = None;
-        if !matches!(end.phase(), Ok(Phase::Done)) {
-            let kind = error_kind(end.error_code);
-            // The hand closed and felt too little, or the object did not stay in
-            // it: the executor stopped because of the grasp, not of the devices. The
-            // trial failed; the observer judges that grasp for why.
-            let grasp_failed = matches!(kind, "no_contact" | "grasp_lost");
-            if !(grasp_failed && trial.closing_joints.is_some()) {
-                return Ok(Attempt::Stopped {
-                    kind: kind.to_string(),
-                });
+        let stopped_after_closing = match end.phase() {
+            Ok(Phase::Done) => None,
+            _ => {
+                let kind = error_kind(end.error_code);
+                // The hand closed and felt too little, or the object did not stay
+                // in it: the executor stopped because of the grasp, not of the
+                // devices. The trial failed; the observer judges that grasp for why.
+                let grasp_failed = matches!(kind, "no_contact" | "grasp_lost");
+                if !(grasp_failed && trial.closing_joints.is_some()) {
+                    return Ok(Attempt::Stopped {
+                        kind: kind.to_string(),
+                    });
+                }
+                Some(kind.to_string())
             }
-            stopped_after_closing = Some(kind.to_string());
-        }
+        };
         let base_from_palm = match trial.closing_joints {
             Some(q) => self.robot.arm().palm(&q),
             None => plan.base_from_palm.to_pose("plan palm")?,
@@ -378,7 +380,7 @@ impl Logger {
             Ending::Camera(fault) => return died(camera_note(*fault)),
             Ending::Reported => {}
         }
-        let attempt = self.attempt(trial)?;
+        let mut attempt = self.attempt(trial)?;
         match self.options.observer {
             ObserverKind::Terminal => {
                 eprintln!("trial {}: {:?}; grade it", trial.request.trial_id, attempt);
@@ -398,26 +400,11 @@ impl Logger {
                 })?;
                 // The lab's execution error: the arm stands at the closing joints
                 // plus the trial's joint errors.
-                let attempt = match (attempt, setup.lab, trial.closing_joints) {
-                    (
-                        Attempt::Executed {
-                            spread_rad,
-                            preshape_rad,
-                            best_fit,
-                            stopped_after_closing,
-                            ..
-                        },
-                        Some(lab),
-                        Some(q),
-                    ) => Attempt::Executed {
-                        base_from_palm: self.robot.arm().palm(&lab.executed_joints(&q)),
-                        spread_rad,
-                        preshape_rad,
-                        best_fit,
-                        stopped_after_closing,
-                    },
-                    (attempt, _, _) => attempt,
-                };
+                if let (Attempt::Executed { base_from_palm, .. }, Some(lab), Some(q)) =
+                    (&mut attempt, setup.lab, trial.closing_joints)
+                {
+                    *base_from_palm = self.robot.arm().palm(&lab.executed_joints(&q));
+                }
                 let seen = observer
                     .grade(
                         &setup.object.name,

@@ -266,10 +266,10 @@ fn remove_earlier_meshes(dir: &Path, keep: Option<&Path>) {
     };
     for entry in entries.flatten() {
         let name = entry.file_name();
-        let name = name.to_string_lossy();
-        let earlier = name.starts_with("object-")
-            && name.ends_with(".ply")
-            && keep.is_none_or(|k| k.as_os_str() != entry.file_name().as_os_str());
+        let earlier = keep.is_none_or(|k| k.as_os_str() != name)
+            && name
+                .to_str()
+                .is_some_and(|n| n.starts_with("object-") && n.ends_with(".ply"));
         if earlier {
             if let Err(e) = std::fs::remove_file(entry.path()) {
                 tracing::warn!("{}: not removed: {e}", entry.path().display());
