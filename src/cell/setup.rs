@@ -226,7 +226,10 @@ impl TrialSetup {
         let (mesh, category, seed) = match self.source {
             ObjectSource::Training => (None, Some(self.category), self.object.seed),
             _ => {
-                let name = PathBuf::from(format!("object-{}.ply", self.trial_id));
+                let name = PathBuf::from(format!(
+                    "{SCENE_MESH_PREFIX}{}{SCENE_MESH_SUFFIX}",
+                    self.trial_id
+                ));
                 crate::mesh::write_mesh(&dir.join(&name), &self.mesh()?).map_err(|e| {
                     CellError::Setup {
                         path: dir.join(&name),
@@ -257,6 +260,10 @@ impl TrialSetup {
     }
 }
 
+/// A trial's scene object is `<prefix><trial id><suffix>`, `object-<trial id>.ply`.
+const SCENE_MESH_PREFIX: &str = "object-";
+const SCENE_MESH_SUFFIX: &str = ".ply";
+
 /// Removes the `object-<trial id>.ply` meshes in `dir` but `keep`: earlier trials'
 /// scene objects, which the scene just written no longer names. A file that cannot
 /// be removed is logged and left.
@@ -267,9 +274,9 @@ fn remove_earlier_meshes(dir: &Path, keep: Option<&Path>) {
     for entry in entries.flatten() {
         let name = entry.file_name();
         let earlier = keep.is_none_or(|k| k.as_os_str() != name)
-            && name
-                .to_str()
-                .is_some_and(|n| n.starts_with("object-") && n.ends_with(".ply"));
+            && name.to_str().is_some_and(|n| {
+                n.starts_with(SCENE_MESH_PREFIX) && n.ends_with(SCENE_MESH_SUFFIX)
+            });
         if earlier {
             if let Err(e) = std::fs::remove_file(entry.path()) {
                 tracing::warn!("{}: not removed: {e}", entry.path().display());

@@ -44,8 +44,9 @@ enum Motion {
         /// The guard and the TCP force at the start.
         guard: Option<(ForceGuard, [f64; 3])>,
     },
-    /// Decelerate to rest, then hold.
+    /// Decelerate to rest, then hold; `id` is the motion stopped.
     Brake {
+        id: u64,
         profile: StopProfile<JOINTS>,
         t_s: f64,
     },
@@ -368,7 +369,7 @@ impl DriverCore {
                     trajectory.sample(*t_s).position
                 }
             }
-            Motion::Brake { profile, t_s } => {
+            Motion::Brake { profile, t_s, .. } => {
                 *t_s += dt_s;
                 let q = profile.sample(*t_s).position;
                 if *t_s >= profile.duration_s() {
@@ -417,7 +418,10 @@ impl DriverCore {
     }
 
     /// Checks for a late measurement at `now`; the first time one is overdue by
-    /// `timeout_s` this reports it, aborts the motion and holds. Returns whether it
+    /// `timeout_s` this reports it, aborts the motion and stops the arm: a running
+    /// trajectory decelerates from its last command within its limits, then holds.
+    /// Holding at once would answer the next measurement, when the link comes back
+    /// with the robot still commanding, with a step in velocity. Returns whether it
     /// did so now.
     pub fn check_late(&mut self, now: Duration) -> bool {
         let Some(last_rx) = self.last_rx else {
@@ -438,9 +442,7 @@ impl DriverCore {
             waited_s,
             timeout_s,
         });
-        if !matches!(self.motion, Motion::Mirror) {
-            self.motion = Motion::Hold(self.commanded_rad);
-        }
+        self.brake();
         true
     }
 
@@ -488,6 +490,11 @@ impl DriverCore {
             });
         };
         self.commandable(&m)?;
+        // A stop still decelerating: a motion starting from rest would be a step in
+        // velocity.
+        if let Motion::Brake { id, .. } = self.motion {
+            return Err(FriError::Busy { id });
+        }
         let current = match &self.motion {
             Motion::Hold(q) => *q,
             _ => m.mirrored_jnt_pos().map(f64::from),
@@ -538,7 +545,11 @@ impl DriverCore {
         let now = trajectory.sample(*t_s);
         let profile = StopProfile::new(now.position, now.velocity, trajectory.limits());
         let id = *id;
-        self.motion = Motion::Brake { profile, t_s: 0.0 };
+        self.motion = Motion::Brake {
+            id,
+            profile,
+            t_s: 0.0,
+        };
         Some(id)
     }
 

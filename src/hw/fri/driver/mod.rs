@@ -42,7 +42,10 @@
 //! - No measurement for `timeout_s` (a late packet) is a safe stop: the driver cannot
 //!   send without a measurement to answer, so it reports
 //!   [`FriEvent::MeasurementLate`], aborts the motion with [`FriError::MeasurementLate`]
-//!   and holds its last command for when the link returns. The robot bridges one
+//!   and stops it as [`FriDriver::stop`] does: when the link returns with the robot
+//!   still commanding, the answers decelerate from the last command within the
+//!   limits and then hold (holding the last command at once would be a step in
+//!   velocity, which the KRC faults on). The robot bridges one
 //!   missing answer by extrapolation and then, as link quality falls, drops to
 //!   monitor mode and stops the arm under its own control.
 //! - When the robot leaves command mode (reported as [`FriEvent::DroppedToMonitor`])
