@@ -405,35 +405,34 @@ fn classify_nodes(
     Ok(peers)
 }
 
-fn publisher_peers<P: std::fmt::Debug + ?Sized + iceoryx2::prelude::IceoryxSend, H>(
-    service: &PubSubService<Ipc, P, H>,
-    config: &iceoryx2::config::Config,
-    target: &str,
-) -> Result<Peers, IpcError>
-where
-    H: std::fmt::Debug + ZeroCopySend,
-{
-    let mut nodes = Vec::new();
-    service.dynamic_config().list_publishers(|d| {
-        nodes.push(d.node_id);
-        CallbackProgression::Continue
-    });
-    classify_nodes(config, target, nodes)
+/// The ports of a service whose nodes [`port_peers`] classifies.
+#[derive(Clone, Copy)]
+enum Ports {
+    Publishers,
+    Subscribers,
 }
 
-fn subscriber_peers<P: std::fmt::Debug + ?Sized + iceoryx2::prelude::IceoryxSend, H>(
+fn port_peers<P: std::fmt::Debug + ?Sized + iceoryx2::prelude::IceoryxSend, H>(
     service: &PubSubService<Ipc, P, H>,
     config: &iceoryx2::config::Config,
     target: &str,
+    ports: Ports,
 ) -> Result<Peers, IpcError>
 where
     H: std::fmt::Debug + ZeroCopySend,
 {
     let mut nodes = Vec::new();
-    service.dynamic_config().list_subscribers(|d| {
-        nodes.push(d.node_id);
-        CallbackProgression::Continue
-    });
+    let dynamic = service.dynamic_config();
+    match ports {
+        Ports::Publishers => dynamic.list_publishers(|d| {
+            nodes.push(d.node_id);
+            CallbackProgression::Continue
+        }),
+        Ports::Subscribers => dynamic.list_subscribers(|d| {
+            nodes.push(d.node_id);
+            CallbackProgression::Continue
+        }),
+    }
     classify_nodes(config, target, nodes)
 }
 
@@ -465,7 +464,12 @@ impl<M: Message> MessagePublisher<M> {
 
     /// Living and dead subscribers of the topic.
     pub fn subscriber_peers(&self) -> Result<Peers, IpcError> {
-        subscriber_peers(&self.service, &self.config, &self.target)
+        port_peers(
+            &self.service,
+            &self.config,
+            &self.target,
+            Ports::Subscribers,
+        )
     }
 }
 
@@ -496,7 +500,7 @@ impl<M: Message> MessageSubscriber<M> {
 
     /// Living and dead publishers of the topic.
     pub fn publisher_peers(&self) -> Result<Peers, IpcError> {
-        publisher_peers(&self.service, &self.config, &self.target)
+        port_peers(&self.service, &self.config, &self.target, Ports::Publishers)
     }
 }
 
@@ -576,7 +580,12 @@ impl CloudPublisher {
 
     /// Living and dead subscribers of the topic.
     pub fn subscriber_peers(&self) -> Result<Peers, IpcError> {
-        subscriber_peers(&self.service, &self.config, &self.target)
+        port_peers(
+            &self.service,
+            &self.config,
+            &self.target,
+            Ports::Subscribers,
+        )
     }
 }
 
@@ -648,7 +657,7 @@ impl CloudSubscriber {
 
     /// Living and dead publishers of the topic.
     pub fn publisher_peers(&self) -> Result<Peers, IpcError> {
-        publisher_peers(&self.service, &self.config, &self.target)
+        port_peers(&self.service, &self.config, &self.target, Ports::Publishers)
     }
 }
 
